@@ -1,0 +1,46 @@
+"""Rheology: generalized Newtonian viscosity laws as ``nn.Module``s, and flow-curve fitting.
+
+All quantities are SI: shear rate [1/s], shear stress [Pa], viscosity [Pa·s].
+"""
+
+from diffstir.rheology.flow_curve import (
+    FlowCurve,
+    FlowCurveFit,
+    bundled_flow_curves,
+    fit_flow_curve,
+    load_flow_curves,
+    rank_laws,
+)
+from diffstir.rheology.laws import (
+    LAWS,
+    Bingham,
+    Carreau,
+    Cross,
+    HerschelBulkley,
+    Newtonian,
+    PowerLaw,
+    RegularisedLaw,
+    RheologyLaw,
+    Tabulated,
+    make_law,
+)
+
+__all__ = [
+    "LAWS",
+    "Bingham",
+    "Carreau",
+    "Cross",
+    "FlowCurve",
+    "FlowCurveFit",
+    "HerschelBulkley",
+    "Newtonian",
+    "PowerLaw",
+    "RegularisedLaw",
+    "RheologyLaw",
+    "Tabulated",
+    "bundled_flow_curves",
+    "fit_flow_curve",
+    "load_flow_curves",
+    "make_law",
+    "rank_laws",
+]
