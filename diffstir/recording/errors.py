@@ -1,0 +1,15 @@
+"""Errors and warnings raised for recordings that do not follow the format."""
+
+from __future__ import annotations
+
+
+class RecordingError(ValueError):
+    """A recording (or a measurement in one) breaks the format or is physically impossible.
+
+    The message names the file, the field or column, the offending value (with row and time for columns)
+    and the expected unit.
+    """
+
+
+class RecordingWarning(UserWarning):
+    """A recording is readable but something in it deserves attention (unknown fields, partial data, ...)."""
