@@ -1,0 +1,8 @@
+"""Differentiable MLS-MPM simulation of a rod stirring a fluid in a cup."""
+
+from .config import SimConfig
+from .materials import Corotated, KelvinVoigt
+from .simulator import SimResult, StirringSimulator, simulate
+from .state import State
+
+__all__ = ["Corotated", "KelvinVoigt", "SimConfig", "SimResult", "State", "StirringSimulator", "simulate"]

@@ -1,0 +1,111 @@
+"""Constitutive models: the fluid's shear stress from its velocity gradient.
+
+Both materials share the simulator's weakly compressible volumetric response τ_v(J) (evaluated on the particles,
+``volumetric_stress``); they differ in the shear stress (evaluated in grid cells, ``shear_stress``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+SHEAR_RATE_FLOOR = 1e-6  # 1/s, keeps d(shear rate)/dC finite where the fluid is at rest
+
+
+def deviatoric_rate_of_strain(C: Tensor) -> Tensor:
+    """dev(D), D = (C + Cᵀ)/2, of velocity gradients C [1/s], (N, d, d)."""
+    D = 0.5 * (C + C.transpose(-1, -2))
+    eye = torch.eye(C.shape[-1], dtype=C.dtype, device=C.device)
+    return D - D.diagonal(dim1=-2, dim2=-1).sum(-1)[:, None, None] / C.shape[-1] * eye
+
+
+def shear_rate(dev_D: Tensor) -> Tensor:
+    """Scalar shear rate γ̇ = sqrt(2 dev(D):dev(D)) [1/s]; γ̇ equals du/dy in simple shear u = (γ̇ y, 0)."""
+    return torch.sqrt(2.0 * (dev_D * dev_D).sum(dim=(-1, -2)) + SHEAR_RATE_FLOOR**2)
+
+
+def volumetric_stress(J: Tensor, bulk_modulus: float) -> Tensor:
+    """Neo-Hookean volumetric stress τ_v = κ/2 (J − 1/J) [Pa] (the paper's Eq. 3): tension positive."""
+    return 0.5 * bulk_modulus * (J - 1.0 / J)
+
+
+class KelvinVoigt(nn.Module):
+    """The paper's Kelvin-Voigt fluid: σ = τ_v(J) I + 2 η(γ̇) dev(D), D = (∇v + ∇vᵀ)/2.
+
+    The viscous part is deviatoric (no bulk viscosity), so in simple shear σ_xy = η(γ̇) γ̇, and the apparent
+    viscosity η comes from ``law`` (any ``diffstir.rheology`` law) at the particle's shear rate.
+    """
+
+    def __init__(self, law: nn.Module):
+        super().__init__()
+        if not isinstance(law, nn.Module) or not hasattr(law, "max_viscosity"):
+            raise TypeError(
+                f"KelvinVoigt needs a rheology law (an nn.Module from diffstir.rheology such as Carreau(...)), "
+                f"got {type(law).__name__}"
+            )
+        self.law = law
+
+    def shear_stress(self, grad_v: Tensor, viscosity_cap: float, dt: float) -> Tensor:
+        """Viscous stress 2 η(γ̇) dev(D) [Pa], (K, d, d), for velocity gradients ``grad_v`` [1/s], (K, d, d).
+
+        The apparent viscosity is clamped at ``viscosity_cap`` [Pa·s], the largest the explicit step resolves: a
+        bi-viscous regularisation under which unyielded (plug) regions move as a very viscous fluid.
+        """
+        dev_D = deviatoric_rate_of_strain(grad_v)
+        eta = self.law(shear_rate(dev_D)).clamp(max=viscosity_cap)
+        return 2.0 * eta[:, None, None] * dev_D
+
+    def max_viscosity(self, shear_rate_max: float, dt: float | None = None) -> float:
+        """Upper bound of the apparent viscosity up to ``shear_rate_max`` [Pa·s], for the time-step limit."""
+        return float(self.law.max_viscosity(shear_rate_max))
+
+
+class Corotated(nn.Module):
+    """The fixed-corotated liquid used by FluidLab-style MPM, the paper's baseline.
+
+    Shear stress 2μ (F − R) Fᵀ on the step's trial deformation gradient F = I + Δt ∇v, after which F is reset to
+    its volumetric part (the usual MPM liquid treatment); the volumetric part is the simulator's τ_v(J).
+    The shear term is then a viscous stress with an effective viscosity μ Δt that does not depend on the shear
+    rate: the baseline cannot express shear thinning, thickening or a yield stress.
+
+    Args:
+        shear_modulus: μ [Pa]; an ``nn.Parameter`` stored in log space.
+    """
+
+    def __init__(self, shear_modulus: float = 1e3):
+        super().__init__()
+        if not shear_modulus > 0:
+            raise ValueError(f"Corotated.shear_modulus = {shear_modulus}; expected a positive value in Pa")
+        self.log_shear_modulus = nn.Parameter(torch.tensor(float(shear_modulus)).log())
+
+    @property
+    def shear_modulus(self) -> Tensor:
+        """μ [Pa]."""
+        return self.log_shear_modulus.exp()
+
+    def shear_stress(self, grad_v: Tensor, viscosity_cap: float, dt: float) -> Tensor:
+        """Corotated shear stress 2μ (F − R) Fᵀ [Pa], (K, d, d), with F = I + Δt ∇v."""
+        eye = torch.eye(grad_v.shape[-1], dtype=grad_v.dtype, device=grad_v.device)
+        F_trial = eye + dt * grad_v
+        R = polar_rotation(F_trial)
+        return 2.0 * self.shear_modulus.to(grad_v.dtype) * (F_trial - R) @ F_trial.transpose(-1, -2)
+
+    def max_viscosity(self, shear_rate_max: float, dt: float | None = None) -> float:
+        """Effective viscosity μ Δt [Pa·s] (with Δt = ``dt``, or 1 ms when not yet known)."""
+        return float(self.shear_modulus.detach()) * (dt if dt is not None else 1e-3)
+
+    def apparent_viscosity(self, dt: float) -> float:
+        """The baseline's viscosity estimate μ Δt [Pa·s] at the rollout's step ``dt`` [s]."""
+        return float(self.shear_modulus.detach()) * dt
+
+
+def polar_rotation(F: Tensor, iterations: int = 8) -> Tensor:
+    """Rotation R of the polar decomposition F = R S, by Newton's iteration X ← (X + X⁻ᵀ)/2.
+
+    Smooth everywhere F is invertible, unlike an SVD whose gradient is undefined at repeated singular values
+    (every particle at rest). Converges quadratically for F near a rotation, which is the case for a liquid.
+    """
+    X = F
+    for _ in range(iterations):
+        X = 0.5 * (X + torch.linalg.inv(X).transpose(-1, -2))
+    return X

@@ -1,0 +1,143 @@
+"""Building a scene: the grid around the cup, the fluid's particles, and its settled state at rest (cached)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from ..rig import Rig
+from .boundaries import BAND, RodPose, cup_sdf, rod_sdf, rod_shape
+from .config import SimConfig
+from .grid import Grid
+from .materials import deviatoric_rate_of_strain
+from .state import State
+from .step import Scene, step
+
+PADDING = 3  # cells of grid beyond the cup on every side: the ghost band and the stencil's reach
+
+
+def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
+    """The static part of a simulation of ``rig`` filled with fluid of ``density`` [kg/m³]."""
+    if not 1.0 <= density <= 3.0e4:
+        raise ValueError(f"density = {density!r}; expected a fluid density in kg/m³ (water is 1000)")
+    dtype, device, dx, d = config.torch_dtype, config.torch_device, config.dx, config.dim
+    cup = rig.cup
+    if cup.radius / dx < 4:
+        raise ValueError(f"sim.dx = {dx} m is too coarse for a cup of radius {cup.radius} m (need >= 4 cells)")
+    lo = [-cup.radius - PADDING * dx] * 2
+    hi = [cup.radius + PADDING * dx] * 2
+    if d == 3:
+        lo.append(-PADDING * dx)
+        hi.append(cup.fill_height + config.headroom + PADDING * dx)
+    shape = tuple(int(math.ceil((h - l) / dx)) + 1 for l, h in zip(lo, hi))
+    grid = Grid(origin=torch.tensor(lo, dtype=dtype, device=device), shape=shape, dx=dx)
+    nodes = grid.node_positions()
+    cup_phi, cup_normal = cup_sdf(cup, nodes)
+    reach = (cup_phi < 0) & (cup_phi > -(BAND + 1.0) * dx)
+    bulk_modulus = density * config.sound_speed**2
+    gravity = torch.zeros(d, dtype=dtype, device=device)
+    if d == 3:
+        gravity[2] = -rig.gravity
+    cells_volume = (dx / config.particles_per_cell) ** d
+    shape_of_rod = rod_shape(rig.rod, dx)
+    above_tip = (hi[-1] - rig.rod_tip_height) if d == 3 else 0.0
+    rod_surface = tuple(t.to(dtype=dtype, device=device) for t in shape_of_rod.surface(0.5 * dx, above_tip, d))
+    return Scene(
+        grid=grid, offsets=grid.stencil_offsets(), strides=grid.strides(), nodes=nodes, cup=cup,
+        cup_phi=cup_phi, cup_normal=cup_normal, cup_nodes=torch.nonzero(reach).squeeze(1),
+        rod=shape_of_rod, rod_slip=rig.rod.wall == "slip", rod_surface=rod_surface,
+        particle_mass=density * cells_volume, particle_volume=cells_volume, node_mass=density * dx**d,
+        bulk_modulus=bulk_modulus,
+        gravity=gravity, viscosity_cap=viscosity_cap(config, density),
+    )
+
+
+def viscosity_cap(config: SimConfig, density: float) -> float:
+    """The viscosity [Pa·s] whose explicit limit ρ dx² / (2 d η) equals the acoustic step cfl dx / c.
+
+    Up to this value viscosity costs no extra steps; the cap bounds the cost of yield-stress plugs.
+    """
+    return config.viscous_safety * density * config.dx * config.sound_speed / (2 * config.dim * config.cfl)
+
+
+def seed_particles(scene: Scene, rig: Rig, config: SimConfig, pose: RodPose) -> State:
+    """Particles on a regular lattice, ``particles_per_cell`` per axis, filling the cup to its fill height
+    around the rod at ``pose``; at rest with volume ratio 1."""
+    grid, d, ppc = scene.grid, scene.dim, config.particles_per_cell
+    spacing = grid.dx / ppc
+    lo = grid.origin + 0.5 * spacing
+    counts = [int(grid.shape[a] * ppc) for a in range(d)]
+    axes = [lo[a] + spacing * torch.arange(counts[a], dtype=lo.dtype, device=lo.device) for a in range(d)]
+    x = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, d)
+    keep = (cup_sdf(rig.cup, x)[0] > 0) & (rod_sdf(scene.rod, x, pose)[0] > 0)
+    if d == 3:
+        keep &= x[:, 2] < rig.cup.fill_height
+    x = x[keep]
+    n = x.shape[0]
+    zeros = torch.zeros_like(x)
+    return State(x=x, v=zeros, C=torch.zeros(n, d, d, dtype=x.dtype, device=x.device),
+                 J=torch.ones(n, dtype=x.dtype, device=x.device))
+
+
+class _SettlingFluid(nn.Module):
+    """A Newtonian fluid of fixed viscosity used only to let the fluid settle under gravity."""
+
+    def __init__(self, viscosity: float):
+        super().__init__()
+        self.viscosity = viscosity
+
+    def shear_stress(self, grad_v, viscosity_cap, dt):
+        return 2.0 * self.viscosity * deviatoric_rate_of_strain(grad_v)
+
+
+def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pose: RodPose,
+                  cache_dir: str | Path | None = None) -> State:
+    """The fluid at rest around a still rod: seeded, then left to settle under gravity (3-D) with damping.
+
+    The result depends only on the rig, the resolution, the density and the rod's starting pose, not on the
+    rheology, so it is computed once and cached on disk (``cache_dir``, default ``$DIFFSTIR_CACHE_DIR`` or
+    ``~/.cache/diffstir``).
+    """
+    state = seed_particles(scene, rig, config, pose)
+    if scene.dim == 2 or config.settle_time <= 0:
+        return state
+    key = _settle_key(rig, config, density, pose)
+    root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
+    path = root / "settled" / f"{key}.pt"
+    if path.exists():
+        cached = torch.load(path, map_location=state.x.device)
+        if cached["x"].shape == state.x.shape:
+            return State(x=cached["x"].to(state.x), v=torch.zeros_like(state.x), C=torch.zeros_like(state.C),
+                         J=cached["J"].to(state.J))
+    fluid = _SettlingFluid(viscosity=0.5 * scene.viscosity_cap)
+    dt = config.cfl * config.dx / config.sound_speed
+    damping = math.exp(-dt / 0.02)  # velocity decays with a 20 ms time constant
+    still = RodPose(axis=pose.axis, tip=pose.tip, angle=pose.angle, velocity=torch.zeros_like(pose.velocity),
+                    angular_velocity=torch.zeros_like(pose.angular_velocity))
+    with torch.no_grad():
+        for _ in range(int(math.ceil(config.settle_time / dt))):
+            state, _, _ = step(scene, fluid, state, still, dt)
+            state.v = state.v * damping
+            state.C = state.C * damping
+    settled = State(x=state.x, v=torch.zeros_like(state.v), C=torch.zeros_like(state.C), J=state.J)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    torch.save({"x": settled.x.cpu(), "J": settled.J.cpu()}, tmp)
+    os.replace(tmp, path)
+    return settled
+
+
+def _settle_key(rig: Rig, config: SimConfig, density: float, pose: RodPose) -> str:
+    fields = {k: v for k, v in asdict(config).items() if k in ("dim", "dx", "particles_per_cell", "sound_speed", "cfl",
+                                                                 "headroom", "settle_time", "dtype")}
+    payload = json.dumps({"rig": asdict(rig), "sim": fields, "density": density, "version": 1,
+                          "pose": [round(float(v), 9) for v in (*pose.axis.tolist(), pose.tip, pose.angle)]},
+                         sort_keys=True, default=str)
+    return hashlib.sha256(payload.encode()).hexdigest()[:20]

@@ -1,0 +1,184 @@
+"""The stirring simulator as a torch module: a fluid in a rig, stirred along a trajectory, gives the force on the rod.
+
+    sim = StirringSimulator(Carreau(eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6), Rig(), SimConfig(dim=3), density=1050)
+    result = sim(circle(radius=0.02, speed=0.1, duration=2.0))
+    result.force.abs().mean().backward()          # gradients reach the law's nn.Parameters
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+from torch.utils.checkpoint import checkpoint
+
+from ..rig import Rig
+from ..trajectory import Trajectory
+from .boundaries import RodPose
+from .config import SimConfig
+from .materials import KelvinVoigt
+from .scene import build_scene, settled_state
+from .state import State
+from .step import Scene, step
+
+SHEAR_RATE_SCALE = 4.0  # the largest shear rate resolvable on the grid is about this times (max speed / dx)
+
+
+@dataclass
+class SimResult:
+    """The output of a rollout.
+
+    Attributes:
+        times: mid-step times [s], (T,).
+        force: the fluid's force on the rod over each step [N], (T, d); in 2-D per unit length of rod [N/m].
+        torque: the fluid's torque on the rod about its own axis [N·m], (T,); in 2-D per unit length [N].
+        dt: the time step [s].
+        state: the fluid's final state.
+        snapshots: particle positions [m] every ``snapshot_every`` steps, for drawing (detached).
+        per_unit_length: True for a 2-D slice.
+    """
+
+    times: Tensor
+    force: Tensor
+    torque: Tensor
+    dt: float
+    state: State
+    snapshots: list[Tensor]
+    per_unit_length: bool
+
+
+class StirringSimulator(nn.Module):
+    """A fluid in the rig, simulated with MLS-MPM; its parameters are those of the fluid's law.
+
+    Args:
+        fluid: a rheology law (``diffstir.rheology``; wrapped in the paper's Kelvin-Voigt material) or a material
+            module (``KelvinVoigt``, ``Corotated``).
+        rig: cup and rod (default: the paper's rig).
+        config: resolution and numerics (default: ``SimConfig()``).
+        density: the fluid's density [kg/m³].
+        cache_dir: where settled states are cached (default ``$DIFFSTIR_CACHE_DIR`` or ``~/.cache/diffstir``).
+    """
+
+    def __init__(self, fluid: nn.Module, rig: Rig | None = None, config: SimConfig | None = None, *,
+                 density: float = 1000.0, cache_dir: str | Path | None = None):
+        super().__init__()
+        if not isinstance(fluid, nn.Module):
+            raise TypeError(f"fluid must be a rheology law or a material nn.Module, got {type(fluid).__name__}; "
+                            "for example diffstir.rheology.Newtonian(eta=0.1)")
+        self.material = fluid if hasattr(fluid, "shear_stress") else KelvinVoigt(fluid)
+        self.rig = rig or Rig()
+        self.config = config or SimConfig()
+        self.density = float(density)
+        self.cache_dir = cache_dir
+        self.scene: Scene = build_scene(self.rig, self.config, self.density)
+        self.material.to(device=self.config.torch_device, dtype=self.config.torch_dtype)
+
+    @property
+    def viscosity_cap(self) -> float:
+        """The largest apparent viscosity the simulation resolves [Pa·s] (see ``SimConfig``)."""
+        return self.scene.viscosity_cap
+
+    def time_step(self, trajectory: Trajectory) -> float:
+        """The explicit step [s]: min of the acoustic limit cfl·dx/(c + u_max), the viscous limit
+        safety·ρ dx²/(2 d η_max) and ``dt_max``, shortened so that it divides the trajectory's duration."""
+        cfg = self.config
+        if cfg.dt is not None:
+            dt = cfg.dt
+        else:
+            u_max = trajectory.max_speed(self.rig.rod.radius)
+            eta_max = min(self.material.max_viscosity(SHEAR_RATE_SCALE * u_max / cfg.dx + 1.0), self.viscosity_cap)
+            dt = min(cfg.cfl * cfg.dx / (cfg.sound_speed + u_max),
+                     cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12)), cfg.dt_max)
+        steps = max(1, math.ceil(trajectory.duration / dt - 1e-9))
+        return trajectory.duration / steps
+
+    def initial_state(self, trajectory: Trajectory) -> State:
+        """The settled fluid around the rod at the trajectory's first pose."""
+        pose = self._poses(trajectory, np.array([trajectory.t[0], trajectory.t[0] + 1e-3]))[0]
+        return settled_state(self.scene, self.rig, self.config, self.density, pose, self.cache_dir)
+
+    def forward(self, trajectory: Trajectory, *, initial: State | None = None,
+                snapshot_every: int = 0) -> SimResult:
+        """Stir along ``trajectory`` from the settled fluid (or ``initial``) and return the forces on the rod."""
+        self._check_clearance(trajectory)
+        dt = self.time_step(trajectory)
+        steps = int(round(trajectory.duration / dt))
+        times = trajectory.t[0] + dt * np.arange(steps + 1)
+        poses = self._poses(trajectory, times)
+        state = initial if initial is not None else self.initial_state(trajectory)
+        forces, torques, snapshots = [], [], []
+        segment = self.config.checkpoint_every or steps
+        for start in range(0, steps, segment):
+            stop = min(start + segment, steps)
+
+            def run(*tensors, start=start, stop=stop):
+                s, f, q = State.from_tensors(tensors), [], []
+                for k in range(start, stop):
+                    s, force, torque = step(self.scene, self.material, s, poses[k], dt)
+                    f.append(force)
+                    q.append(torque)
+                return (*s.tensors(), torch.stack(f), torch.stack(q))
+
+            if self.config.checkpoint_every and torch.is_grad_enabled():
+                out = checkpoint(run, *state.tensors(), use_reentrant=False)
+            else:
+                out = run(*state.tensors())
+            state = State.from_tensors(out[:4])
+            self._check_finite(state, start, stop, dt)
+            forces.append(out[4])
+            torques.append(out[5])
+            if snapshot_every and (stop // snapshot_every > start // snapshot_every or start == 0):
+                snapshots.append(state.x.detach().clone())
+        mid = torch.as_tensor(times[:-1] + 0.5 * dt, dtype=self.config.torch_dtype, device=state.x.device)
+        return SimResult(times=mid, force=torch.cat(forces), torque=torch.cat(torques), dt=dt, state=state,
+                         snapshots=snapshots, per_unit_length=self.config.dim == 2)
+
+    def _poses(self, trajectory: Trajectory, times: np.ndarray) -> list[RodPose]:
+        """Mid-step rod poses and velocities for the steps between consecutive ``times``."""
+        xy, z, angle = trajectory.poses(times)
+        dt = np.diff(times)[:, None]
+        tip = self.rig.rod_tip_height + z
+        kw = dict(dtype=self.config.torch_dtype, device=self.config.torch_device)
+        axis = torch.as_tensor(0.5 * (xy[1:] + xy[:-1]), **kw)
+        mid_tip = torch.as_tensor(0.5 * (tip[1:] + tip[:-1]), **kw)
+        mid_angle = torch.as_tensor(0.5 * (angle[1:] + angle[:-1]), **kw)
+        velocity = np.diff(xy, axis=0) / dt
+        if self.config.dim == 3:
+            velocity = np.concatenate([velocity, np.diff(tip)[:, None] / dt], axis=1)
+        velocity = torch.as_tensor(velocity, **kw)
+        omega = torch.as_tensor(np.diff(angle) / dt[:, 0], **kw)
+        return [RodPose(axis=axis[k], tip=mid_tip[k], angle=mid_angle[k], velocity=velocity[k],
+                        angular_velocity=omega[k]) for k in range(len(times) - 1)]
+
+    def _check_clearance(self, trajectory: Trajectory) -> None:
+        reach = trajectory.max_offset() + self.rig.rod.radius
+        if reach >= self.rig.cup.radius - 0.5 * self.config.dx:
+            raise ValueError(
+                f"trajectory: the rod (radius {self.rig.rod.radius} m) reaches {reach:.4g} m from the cup's axis, "
+                f"touching the wall at {self.rig.cup.radius} m; keep the axis within "
+                f"{self.rig.cup.radius - self.rig.rod.radius - 0.5 * self.config.dx:.4g} m of the centre"
+            )
+        if self.config.dim == 3 and self.rig.rod_tip_height + float(np.min(trajectory.z)) <= self.config.dx:
+            raise ValueError("trajectory.z: the rod's tip reaches the cup's bottom")
+
+    def _check_finite(self, state: State, start: int, stop: int, dt: float) -> None:
+        if torch.isfinite(state.x).all() and torch.isfinite(state.v).all():
+            return
+        law = getattr(self.material, "law", self.material)
+        params = law.parameters_si() if hasattr(law, "parameters_si") else {
+            n: float(p.detach().reshape(-1)[0]) for n, p in law.named_parameters()}
+        raise FloatingPointError(
+            f"the simulation became non-finite between steps {start} and {stop} (t = {start * dt:.4g}-"
+            f"{stop * dt:.4g} s, dt = {dt:.3g} s) with {type(law).__name__} parameters {params}; "
+            f"try a smaller sim.cfl or sim.viscous_safety"
+        )
+
+
+def simulate(fluid: nn.Module, trajectory: Trajectory, *, rig: Rig | None = None, config: SimConfig | None = None,
+             density: float = 1000.0, snapshot_every: int = 0) -> SimResult:
+    """Stir ``fluid`` (a rheology law or material) in ``rig`` along ``trajectory``; see ``StirringSimulator``."""
+    return StirringSimulator(fluid, rig, config, density=density)(trajectory, snapshot_every=snapshot_every)

@@ -1,0 +1,47 @@
+"""Particle state of the fluid."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import torch
+from torch import Tensor
+
+
+@dataclass
+class State:
+    """The fluid's particles at one instant. N particles, d dimensions.
+
+    Attributes:
+        x: positions [m], (N, d), cup frame.
+        v: velocities [m/s], (N, d).
+        C: affine velocity field (APIC/MLS), the particle's velocity gradient [1/s], (N, d, d).
+        J: volume ratio (current / rest volume) [1], (N,).
+    """
+
+    x: Tensor
+    v: Tensor
+    C: Tensor
+    J: Tensor
+
+    def tensors(self) -> tuple[Tensor, ...]:
+        """The state's tensors in field order (for checkpointing)."""
+        return tuple(getattr(self, f.name) for f in fields(self))
+
+    @classmethod
+    def from_tensors(cls, tensors: tuple[Tensor, ...]) -> "State":
+        return cls(*tensors)
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "State":
+        return State(*(t.to(device=device, dtype=dtype) for t in self.tensors()))
+
+    def detach(self) -> "State":
+        return State(*(t.detach() for t in self.tensors()))
+
+    @property
+    def num_particles(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def dim(self) -> int:
+        return self.x.shape[1]
