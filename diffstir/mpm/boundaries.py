@@ -17,7 +17,6 @@ marking the solid's nodes with its velocity does. Nodes deeper than the probe di
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,15 +67,9 @@ def cup_sdf(cup: Cup, points: Tensor) -> tuple[Tensor, Tensor]:
 
 
 class RodShape:
-    """The rod's geometry in its own frame: signed distance (positive in the fluid) with its unit gradient, and a
-    quadrature of its surface for integrating the pressure."""
+    """The rod's geometry in its own frame: signed distance (positive in the fluid) with its unit gradient."""
 
     def sdf(self, local: Tensor) -> tuple[Tensor, Tensor]:
-        raise NotImplementedError
-
-    def surface(self, spacing: float, height: float, dim: int) -> tuple[Tensor, Tensor, Tensor]:
-        """Quadrature points [m], outward unit normals and areas [m²] (2-D: lengths [m]) of the rod's surface up
-        to ``height`` [m] above its tip, with points about ``spacing`` [m] apart."""
         raise NotImplementedError
 
 
@@ -104,32 +97,6 @@ class CylinderRod(RodShape):
         normal = torch.where(outside_both[:, None], corner_normal, torch.where((d_r > d_z)[:, None], radial, down))
         return phi, normal
 
-    def surface(self, spacing: float, height: float, dim: int) -> tuple[Tensor, Tensor, Tensor]:
-        a = self.radius
-        count = max(16, math.ceil(2 * math.pi * a / spacing))
-        theta = (torch.arange(count, dtype=torch.float64) + 0.5) * 2 * math.pi / count
-        ring = torch.stack([torch.cos(theta), torch.sin(theta)], -1)
-        if dim == 2:
-            return a * ring, ring, torch.full((count,), 2 * math.pi * a / count, dtype=torch.float64)
-        layers = max(1, math.ceil(height / spacing))
-        z = (torch.arange(layers, dtype=torch.float64) + 0.5) * height / layers
-        side = torch.cat([a * ring.repeat(layers, 1), z.repeat_interleave(count)[:, None]], -1)
-        side_n = torch.cat([ring.repeat(layers, 1), torch.zeros(layers * count, 1, dtype=torch.float64)], -1)
-        side_area = torch.full((layers * count,), 2 * math.pi * a / count * height / layers, dtype=torch.float64)
-        points, areas = [], []
-        rings = max(1, math.ceil(a / spacing))
-        for k in range(rings):  # the flat tip: rings of equal width, points about ``spacing`` apart on each
-            r_in, r_out = a * k / rings, a * (k + 1) / rings
-            m = max(6, math.ceil(math.pi * (r_in + r_out) / spacing))
-            phi = (torch.arange(m, dtype=torch.float64) + 0.5) * 2 * math.pi / m
-            r_mid = 0.5 * (r_in + r_out)
-            points.append(torch.stack([r_mid * torch.cos(phi), r_mid * torch.sin(phi), torch.zeros(m, dtype=torch.float64)], -1))
-            areas.append(torch.full((m,), math.pi * (r_out**2 - r_in**2) / m, dtype=torch.float64))
-        tip = torch.cat(points)
-        tip_n = torch.zeros_like(tip)
-        tip_n[:, 2] = -1.0
-        return torch.cat([side, tip]), torch.cat([side_n, tip_n]), torch.cat([side_area, torch.cat(areas)])
-
 
 class MeshRod(RodShape):
     """Any closed mesh (spoon, paddle) as a rod: its signed distance sampled once on a fine grid, interpolated.
@@ -155,16 +122,6 @@ class MeshRod(RodShape):
         self.phi = torch.tensor(phi)
         self.gradient = torch.tensor(np.stack(np.gradient(phi, spacing), axis=-1))
         self.radius = float(np.max(np.linalg.norm(mesh.vertices[:, :2], axis=-1)))
-        self.mesh = mesh
-
-    def surface(self, spacing: float, height: float, dim: int) -> tuple[Tensor, Tensor, Tensor]:
-        import trimesh
-
-        vertices, faces = trimesh.remesh.subdivide_to_size(self.mesh.vertices, self.mesh.faces, max_edge=spacing)
-        fine = trimesh.Trimesh(vertices, faces, process=False)
-        keep = fine.triangles_center[:, 2] <= height
-        return (torch.tensor(fine.triangles_center[keep]), torch.tensor(fine.face_normals[keep]),
-                torch.tensor(fine.area_faces[keep]))
 
     def sdf(self, local: Tensor) -> tuple[Tensor, Tensor]:
         if local.shape[1] != 3:
@@ -205,15 +162,6 @@ def rod_to_cup(local: Tensor, pose: RodPose) -> Tensor:
     c, s = torch.cos(pose.angle), torch.sin(pose.angle)
     out = local.clone()
     out[:, 0], out[:, 1] = c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1]
-    return out
-
-
-def rod_surface_points(local: Tensor, pose: RodPose) -> Tensor:
-    """Rod-frame points in the cup frame [m]."""
-    out = rod_to_cup(local, pose)
-    out[:, :2] = out[:, :2] + pose.axis
-    if local.shape[1] == 3:
-        out[:, 2] = out[:, 2] + pose.tip
     return out
 
 

@@ -22,6 +22,8 @@ class SimConfig:
             enough that the hydrostatic compression ``density * g * fill_height / bulk_modulus`` stays small.
         cfl: acoustic Courant number, ``dt <= cfl * dx / (sound_speed + max rod speed)``.
         viscous_safety: fraction of the explicit viscous limit ``density * dx**2 / (2 * dim * eta_max)`` used.
+        viscosity_cap: the largest apparent viscosity simulated [Pa·s]; a law's viscosity above it is clamped (the
+            bi-viscous regularisation of yield-stress plugs), so that its time step stays finite.
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
@@ -37,6 +39,7 @@ class SimConfig:
     sound_speed: float = 10.0
     cfl: float = 0.4
     viscous_safety: float = 0.9
+    viscosity_cap: float = 20.0
     dt_max: float = 1e-3
     dt: float | None = None
     headroom: float = 0.02
@@ -48,7 +51,7 @@ class SimConfig:
     def __post_init__(self) -> None:
         if self.dim not in (2, 3):
             raise ValueError(f"sim.dim = {self.dim!r}; expected 2 or 3")
-        for name in ("dx", "sound_speed", "cfl", "viscous_safety", "dt_max"):
+        for name in ("dx", "sound_speed", "cfl", "viscous_safety", "dt_max", "viscosity_cap"):
             value = getattr(self, name)
             if not value > 0:
                 raise ValueError(f"sim.{name} = {value!r}; expected a positive number")

@@ -46,25 +46,14 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     if d == 3:
         gravity[2] = -rig.gravity
     cells_volume = (dx / config.particles_per_cell) ** d
-    shape_of_rod = rod_shape(rig.rod, dx)
-    above_tip = (hi[-1] - rig.rod_tip_height) if d == 3 else 0.0
-    rod_surface = tuple(t.to(dtype=dtype, device=device) for t in shape_of_rod.surface(0.5 * dx, above_tip, d))
     return Scene(
         grid=grid, offsets=grid.stencil_offsets(), strides=grid.strides(), nodes=nodes, cup=cup,
         cup_phi=cup_phi, cup_normal=cup_normal, cup_nodes=torch.nonzero(reach).squeeze(1),
-        rod=shape_of_rod, rod_slip=rig.rod.wall == "slip", rod_surface=rod_surface,
+        rod=rod_shape(rig.rod, dx), rod_slip=rig.rod.wall == "slip",
         particle_mass=density * cells_volume, particle_volume=cells_volume, node_mass=density * dx**d,
         bulk_modulus=bulk_modulus,
-        gravity=gravity, viscosity_cap=viscosity_cap(config, density),
+        gravity=gravity, viscosity_cap=config.viscosity_cap,
     )
-
-
-def viscosity_cap(config: SimConfig, density: float) -> float:
-    """The viscosity [Pa·s] whose explicit limit ρ dx² / (2 d η) equals the acoustic step cfl dx / c.
-
-    Up to this value viscosity costs no extra steps; the cap bounds the cost of yield-stress plugs.
-    """
-    return config.viscous_safety * density * config.dx * config.sound_speed / (2 * config.dim * config.cfl)
 
 
 def seed_particles(scene: Scene, rig: Rig, config: SimConfig, pose: RodPose) -> State:
@@ -116,8 +105,9 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
         if cached["x"].shape == state.x.shape:
             return State(x=cached["x"].to(state.x), v=torch.zeros_like(state.x), C=torch.zeros_like(state.C),
                          J=cached["J"].to(state.J))
-    fluid = _SettlingFluid(viscosity=0.5 * scene.viscosity_cap)
+    # any viscosity that the acoustic step resolves settles the fluid; the damping does the rest
     dt = config.cfl * config.dx / config.sound_speed
+    fluid = _SettlingFluid(viscosity=0.5 * config.viscous_safety * density * config.dx**2 / (2 * config.dim * dt))
     damping = math.exp(-dt / 0.02)  # velocity decays with a 20 ms time constant
     still = RodPose(axis=pose.axis, tip=pose.tip, angle=pose.angle, velocity=torch.zeros_like(pose.velocity),
                     angular_velocity=torch.zeros_like(pose.angular_velocity))

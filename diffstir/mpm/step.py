@@ -13,8 +13,7 @@ import torch
 from torch import Tensor
 
 from ..rig import Cup
-from .boundaries import (RodPose, RodShape, cup_sdf, ghost_velocity, interpolate_linear, rod_sdf, rod_surface_points,
-                         rod_to_cup, rod_velocity)
+from .boundaries import RodPose, RodShape, cup_sdf, ghost_velocity, rod_sdf, rod_velocity
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
 from .state import State
@@ -32,8 +31,6 @@ class Scene:
         cup: the cup; ``cup_phi``/``cup_normal`` its signed distance [m] and normal at every node.
         cup_nodes: flat indices of nodes inside the cup's solid within reach of the fluid.
         rod: the rod's shape; ``rod_slip`` whether its surface is a slip wall.
-        rod_surface: quadrature of the rod's surface in its own frame: points [m], outward normals, areas [m²]
-            (2-D: lengths [m]).
         particle_mass: mass of one particle [kg] (2-D: per unit length [kg/m]).
         particle_volume: rest volume of one particle [m³] (2-D: area [m²]).
         node_mass: the mass a grid node carries inside the fluid at rest, density · dx^d [kg] (2-D: [kg/m]).
@@ -52,7 +49,6 @@ class Scene:
     cup_nodes: Tensor
     rod: RodShape
     rod_slip: bool
-    rod_surface: tuple[Tensor, Tensor, Tensor]
     particle_mass: float
     particle_volume: float
     node_mass: float
@@ -66,23 +62,21 @@ class Scene:
 
 
 def p2g(scene: Scene, state: State, dt: float) -> tuple[Tensor, Stencil]:
-    """Scatter particle momentum (with the pressure impulse), mass and mass-weighted pressure to the grid:
-    buffer (num_nodes, d + 2)."""
+    """Scatter particle momentum, with the pressure impulse, and mass to the grid: buffer (num_nodes, d + 1).
+
+    The pressure impulse is the MLS-MPM node force −Σ V σ ∇w Δt with ∇w = w (4/dx²)(x_i − x_p), V = J V0 the
+    particle's current volume and σ = τ_v(J) I its volumetric stress.
+    """
     grid, m, d = scene.grid, scene.particle_mass, scene.dim
     st = quadratic_stencil(grid, state.x, scene.offsets, scene.strides)
-    # MLS-MPM: node force −Σ V σ ∇w with ∇w = w (4/dx²)(x_i − x_p), V = J V0 the particle's current volume and
-    # σ = τ_v(J) I the volumetric stress
-    tau_v = volumetric_stress(state.J, scene.bulk_modulus)
-    kirchhoff = scene.particle_volume * state.J * tau_v
+    kirchhoff = scene.particle_volume * state.J * volumetric_stress(state.J, scene.bulk_modulus)
     eye = torch.eye(d, dtype=state.x.dtype, device=state.x.device)
     affine = m * state.C - (dt * 4.0 / grid.dx**2) * kirchhoff[:, None, None] * eye
-    offsets = scene.offsets.to(state.x.dtype)
-    momentum = m * state.v - grid.dx * (affine @ st.frac[:, :, None])[..., 0]
-    per_node = st.weight[..., None] * (momentum[:, None, :] + grid.dx * torch.einsum("nab,kb->nka", affine, offsets))
-    mass = m * st.weight
-    contrib = torch.cat([per_node, mass[..., None], (-mass * tau_v[:, None])[..., None]], dim=-1).reshape(-1, d + 2)
-    index = st.index.reshape(-1, 1).expand(-1, d + 2)
-    buffer = torch.zeros(grid.num_nodes, d + 2, dtype=state.x.dtype, device=state.x.device)
+    to_node = grid.dx * (scene.offsets.to(state.x.dtype)[None, :, :] - st.frac[:, None, :])  # x_i − x_p [m]
+    momentum = st.weight[..., None] * (m * state.v[:, None, :] + torch.einsum("nab,nkb->nka", affine, to_node))
+    contrib = torch.cat([momentum, (m * st.weight)[..., None]], dim=-1).reshape(-1, d + 1)
+    index = st.index.reshape(-1, 1).expand(-1, d + 1)
+    buffer = torch.zeros(grid.num_nodes, d + 1, dtype=state.x.dtype, device=state.x.device)
     return buffer.scatter_add(0, index, contrib), st
 
 
@@ -123,20 +117,12 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     v_visc = torch.where(has_mass[:, None], v + dt * f_shear / inertia, 0.0)
     v_new = enforce_boundaries(scene, v_visc, fluid, rod, rod_phi, rod_normal, pose)
 
-    # the fluid's force on the rod: the pressure integrated over the rod's surface, −∮ p n dA (exactly zero for a
-    # uniform pressure), plus the shear stress's reaction on the rod's ghost nodes
-    local, local_normal, area = scene.rod_surface
-    points = rod_surface_points(local, pose)
-    pressure_field = torch.stack([buffer[:, d + 1], mass], dim=-1)
-    sample = interpolate_linear(grid.origin, grid.dx, grid.shape, pressure_field, points)
-    pressure = torch.where(sample[:, 1] > MASS_FLOOR, sample[:, 0] / sample[:, 1].clamp_min(MASS_FLOOR), 0.0)
-    f_pressure = -(pressure * area)[:, None] * rod_to_cup(local_normal, pose)
-    f_viscous = f_shear[rod]
-    force = f_pressure.sum(0) + f_viscous.sum(0)
-    arm_p = points[:, :2] - pose.axis
-    arm_v = scene.nodes[rod, :2] - pose.axis
-    torque = ((arm_p[:, 0] * f_pressure[:, 1] - arm_p[:, 1] * f_pressure[:, 0]).sum()
-              + (arm_v[:, 0] * f_viscous[:, 1] - arm_v[:, 1] * f_viscous[:, 0]).sum())
+    # the fluid's force on the rod is the rod's reaction on its ghost nodes: the shear stress on them less the
+    # momentum the boundary condition gives the fluid mass they carry (pressure and gravity are in v)
+    on_rod = f_shear[rod] - mass[rod, None] * (v_new[rod] - v[rod]) / dt
+    force = on_rod.sum(0)
+    arm = scene.nodes[rod, :2] - pose.axis
+    torque = (arm[:, 0] * on_rod[:, 1] - arm[:, 1] * on_rod[:, 0]).sum()
     return v_new, force, torque
 
 

@@ -1,0 +1,1 @@
+"""Command-line applications; the only modules that import Hydra."""

@@ -1,0 +1,90 @@
+"""Compare the simulator with closed-form solutions and print a markdown table (docs/validation.md).
+
+    python scripts/validate_simulator.py [--checks couette translate rest3d]
+
+Checks:
+- couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
+  length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
+- translate: rod translating at 1 mm/s at the centre, 2-D, mu = 1 Pa s; steady force per unit length against
+  4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)], at two sound speeds.
+- rest3d: the paper's 3-D scene at rest for 1 s: volume change and vertical force against rho g V_immersed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import platform
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from problems import couette_torque_newtonian, translating_rod_force  # noqa: E402
+
+from diffstir.mpm import SimConfig, StirringSimulator  # noqa: E402
+from diffstir.rheology import Newtonian  # noqa: E402
+from diffstir.rig import Rig  # noqa: E402
+from diffstir.trajectory import spin, stationary, translate  # noqa: E402
+
+RIG = Rig()
+A, B = RIG.rod.radius, RIG.cup.radius
+
+
+def steady(values: torch.Tensor) -> float:
+    """Mean over the last 30 % of a series."""
+    return values[int(0.7 * len(values)):].mean().item()
+
+
+def couette(dx: float, sound_speed: float) -> tuple[str, float, float]:
+    sim = StirringSimulator(Newtonian(eta=1.0), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
+    with torch.no_grad():
+        result = sim(spin(2.0, duration=0.6, ramp_time=0.1))
+    return (f"Couette torque, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s [N]", -steady(result.torque),
+            couette_torque_newtonian(1.0, 2.0, A, B))
+
+
+def translating(dx: float, sound_speed: float) -> tuple[str, float, float]:
+    sim = StirringSimulator(Newtonian(eta=1.0), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
+    with torch.no_grad():
+        result = sim(translate((1e-3, 0.0), duration=1.0, start=(-0.5e-3, 0.0)))
+    return (f"translating rod drag, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s [N/m]",
+            -steady(result.force[:, 0]), translating_rod_force(1.0, 1e-3, A, B))
+
+
+def rest3d() -> list[tuple[str, float, float]]:
+    config = SimConfig(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45)
+    sim = StirringSimulator(Newtonian(eta=0.1), RIG, config, density=1000.0)
+    trajectory = stationary(1.0)
+    start = sim.initial_state(trajectory)
+    with torch.no_grad():
+        result = sim(trajectory, initial=start)
+    volume = lambda s: (s.J.sum() * sim.scene.particle_volume).item()  # noqa: E731
+    buoyancy = 1000.0 * 9.81 * math.pi * A**2 * RIG.rod.immersion_depth
+    return [("3-D rest (1 cm cells), fluid volume after 1 s / at start", volume(result.state) / volume(start), 1.0),
+            ("3-D rest (1 cm cells), vertical force on the rod [N] vs rho g V", steady(result.force[:, 2]), buoyancy)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checks", nargs="+", default=["couette", "translate", "rest3d"])
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    print(f"{datetime.date.today()}, {platform.machine()}, torch {torch.__version__}, float32")
+    print("| check | simulated | closed form | ratio |")
+    print("|---|---|---|---|")
+    rows = []
+    if "couette" in args.checks:
+        rows += [couette(0.005, 2.0), couette(0.0025, 2.0), couette(0.0025, 1.0)]
+    if "translate" in args.checks:
+        rows += [translating(0.0025, 2.0), translating(0.0025, 0.5)]
+    if "rest3d" in args.checks:
+        rows += rest3d()
+    for name, value, reference in rows:
+        print(f"| {name} | {value:.5g} | {reference:.5g} | {value / reference:.3f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

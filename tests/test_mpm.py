@@ -1,0 +1,175 @@
+"""The MLS-MPM stirring simulator: gradients, checkpointing, closed-form flows and error handling."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from diffstir.mpm import Corotated, SimConfig, StirringSimulator
+from diffstir.rheology import Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw
+from diffstir.rig import Cup, Rig, Rod
+from diffstir.trajectory import circle, spin, translate
+from problems import couette_torque_newtonian, couette_torque_power_law, translating_rod_force
+
+F64 = dict(dtype=torch.float64)
+TINY = SimConfig(dim=2, dx=0.005, sound_speed=2.0, dtype="float64", dt=1e-3, checkpoint_every=7)
+
+LAWS = [
+    Newtonian(eta=0.5, **F64),
+    PowerLaw(k=0.8, n=0.7, **F64),
+    Carreau(eta0=1.0, eta_inf=0.05, lam=0.3, n=0.5, **F64),
+    Cross(eta0=1.0, eta_inf=0.05, lam=0.2, n=0.8, **F64),
+    HerschelBulkley(tau_y=0.05, k=0.5, n=0.8, shear_rate_reg=0.5, **F64),
+    Bingham(tau_y=0.05, eta_p=0.4, shear_rate_reg=0.5, **F64),
+]
+
+
+def _loss(sim, trajectory):
+    result = sim(trajectory)
+    return (result.force**2).sum(-1).mean() + result.torque.square().mean()
+
+
+@pytest.mark.parametrize("law", LAWS, ids=lambda law: law.name)
+def test_gradient_matches_central_differences(law):
+    """d loss / d raw parameter by reverse mode through a checkpointed rollout equals central finite differences."""
+    sim = StirringSimulator(law, Rig(), TINY, density=1000.0)
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.03, ramp_time=0.01)
+    params = [p for p in law.parameters() if p.requires_grad]
+    loss = _loss(sim, trajectory)
+    grads = torch.autograd.grad(loss, params)
+    eps = 1e-5
+    for p, g in zip(params, grads):
+        for i in range(p.numel()):
+            with torch.no_grad():
+                flat = p.view(-1)
+                flat[i] += eps
+                up = _loss(sim, trajectory)
+                flat[i] -= 2 * eps
+                down = _loss(sim, trajectory)
+                flat[i] += eps
+            fd = (up - down) / (2 * eps)
+            # central differences carry O(eps²) truncation and ~1e-16/eps rounding: 1e-5 relative is ample
+            assert float(g.view(-1)[i]) == pytest.approx(float(fd), rel=1e-5, abs=1e-14)
+
+
+def test_corotated_gradient_matches_central_differences():
+    material = Corotated(shear_modulus=400.0).double()
+    sim = StirringSimulator(material, Rig(), TINY, density=1000.0)
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.02, ramp_time=0.01)
+    loss = _loss(sim, trajectory)
+    (g,) = torch.autograd.grad(loss, [material.log_shear_modulus])
+    eps = 1e-5
+    with torch.no_grad():
+        material.log_shear_modulus += eps
+        up = _loss(sim, trajectory)
+        material.log_shear_modulus -= 2 * eps
+        down = _loss(sim, trajectory)
+        material.log_shear_modulus += eps
+    assert float(g) == pytest.approx(float((up - down) / (2 * eps)), rel=1e-5)
+
+
+def test_checkpointing_does_not_change_forces_or_gradients():
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.02, ramp_time=0.01)
+    results = []
+    for every in (0, 5):
+        law = Carreau(eta0=1.0, eta_inf=0.05, lam=0.3, n=0.5, **F64)
+        sim = StirringSimulator(law, Rig(), TINY.replace(checkpoint_every=every), density=1000.0)
+        loss = _loss(sim, trajectory)
+        results.append((float(loss), torch.autograd.grad(loss, list(law.parameters()))))
+    assert results[0][0] == pytest.approx(results[1][0], rel=1e-12)
+    for a, b in zip(results[0][1], results[1][1]):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-16)
+
+
+def test_float32_gradient_agrees_with_float64():
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.03, ramp_time=0.01)
+    grads = []
+    for dtype in ("float64", "float32"):
+        law = Newtonian(eta=0.5, dtype=getattr(torch, dtype))
+        sim = StirringSimulator(law, Rig(), TINY.replace(dtype=dtype), density=1000.0)
+        grads.append(float(torch.autograd.grad(_loss(sim, trajectory), list(law.parameters()))[0]))
+    # float32 rounding (1e-7) amplified over 30 steps of a well-conditioned map stays far below 1e-3
+    assert grads[1] == pytest.approx(grads[0], rel=1e-3)
+
+
+def test_newtonian_couette_torque_2d():
+    """Rod spinning at the cup's centre, Stokes regime (Re = ρΩa(b−a)/μ = 0.75): the steady torque per unit
+    length matches 4πμΩa²b²/(b²−a²) within 5 % at dx = 2.5 mm (the rod is 10 cells across)."""
+    mu, omega = 1.0, 2.0
+    rig = Rig()
+    sim = StirringSimulator(Newtonian(eta=mu), rig, SimConfig(dim=2, dx=0.0025, sound_speed=2.0), density=1000.0)
+    with torch.no_grad():
+        result = sim(spin(omega, duration=0.6, ramp_time=0.1))
+    steady = -result.torque[int(0.7 * len(result.torque)):].mean().item()
+    assert steady == pytest.approx(couette_torque_newtonian(mu, omega, rig.rod.radius, rig.cup.radius), rel=0.05)
+
+
+@pytest.mark.xfail(strict=True, reason="known open defect: near a slowly translating rod the particle volume ratio "
+                   "drifts and its pressure adds drag in proportion to the bulk modulus (docs/validation.md)")
+def test_translating_rod_drag_2d():
+    mu, speed = 1.0, 1e-3
+    rig = Rig()
+    sim = StirringSimulator(Newtonian(eta=mu), rig, SimConfig(dim=2, dx=0.0025, sound_speed=2.0), density=1000.0)
+    with torch.no_grad():
+        result = sim(translate((speed, 0.0), duration=1.0, start=(-0.5e-3, 0.0)))
+    steady = -result.force[int(0.7 * len(result.force)):, 0].mean().item()
+    assert steady == pytest.approx(translating_rod_force(mu, speed, rig.rod.radius, rig.cup.radius), rel=0.05)
+
+
+def test_time_step_obeys_acoustic_and_viscous_limits():
+    rig = Rig()
+    cfg = SimConfig(dim=2, dx=0.0025, sound_speed=2.0)
+    trajectory = circle(radius=0.015, speed=0.1, duration=1.0)
+    u_max = trajectory.max_speed(rig.rod.radius)
+    thin = StirringSimulator(Newtonian(eta=0.01), rig, cfg).time_step(trajectory)
+    assert thin <= cfg.cfl * cfg.dx / (cfg.sound_speed + u_max) + 1e-12
+    thick = StirringSimulator(Newtonian(eta=10.0), rig, cfg).time_step(trajectory)
+    assert thick <= cfg.viscous_safety * 1000.0 * cfg.dx**2 / (2 * 2 * 10.0) + 1e-12
+    assert thick < thin
+    # the step divides the duration exactly
+    assert (1.0 / thick) == pytest.approx(round(1.0 / thick), abs=1e-6)
+
+
+def test_rod_touching_the_wall_is_refused():
+    sim = StirringSimulator(Newtonian(eta=0.1), Rig(), TINY)
+    with pytest.raises(ValueError, match="touching the wall"):
+        sim(circle(radius=0.035, speed=0.05, duration=0.1))
+
+
+def test_unstable_settings_stop_with_a_clear_error():
+    cfg = TINY.replace(dt=2e-2)  # twenty times the acoustic limit
+    sim = StirringSimulator(Newtonian(eta=0.5, **F64), Rig(), cfg)
+    with pytest.raises(FloatingPointError, match=r"steps .* Newtonian parameters \{'eta': 0\.5"):
+        with torch.no_grad():
+            sim(circle(radius=0.015, speed=0.05, duration=2.0))
+
+
+def test_fluid_argument_must_be_a_module():
+    with pytest.raises(TypeError, match="rheology law or a material"):
+        StirringSimulator(lambda rate: rate, Rig(), TINY)
+
+
+def test_three_dimensional_rollout_gives_buoyancy_and_gradients(cache_dir):
+    """The paper's resolution (1 cm cells): the rod feels an upward force of the order of ρ g V and the
+    gradient reaches the law."""
+    law = Newtonian(eta=0.2)
+    cfg = SimConfig(dim=3, dx=0.01, sound_speed=4.5, settle_time=0.2, checkpoint_every=10)
+    sim = StirringSimulator(law, Rig(), cfg, density=1000.0, cache_dir=cache_dir)
+    result = sim(circle(radius=0.015, speed=0.05, duration=0.02, ramp_time=0.01))
+    rod = Rig().rod
+    buoyancy = 1000.0 * 9.81 * math.pi * rod.radius**2 * rod.immersion_depth
+    assert 0.5 * buoyancy < result.force[:, 2].mean().item() < 1.5 * buoyancy
+    result.force[:, :2].square().sum(-1).mean().backward()
+    assert all(torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0 for p in law.parameters())
+
+
+def test_settled_state_is_cached(cache_dir):
+    cfg = SimConfig(dim=3, dx=0.01, sound_speed=4.5, settle_time=0.05)
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.01)
+    first = StirringSimulator(Newtonian(eta=0.2), Rig(), cfg, cache_dir=cache_dir).initial_state(trajectory)
+    assert len(list((cache_dir / "settled").glob("*.pt"))) >= 1
+    again = StirringSimulator(Newtonian(eta=5.0), Rig(), cfg, cache_dir=cache_dir).initial_state(trajectory)
+    torch.testing.assert_close(first.x, again.x)
