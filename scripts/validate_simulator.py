@@ -75,15 +75,14 @@ def main() -> None:
     print(f"{datetime.date.today()}, {platform.machine()}, torch {torch.__version__}, float32")
     print("| check | simulated | closed form | ratio |")
     print("|---|---|---|---|")
-    rows = []
-    if "couette" in args.checks:
-        rows += [couette(0.005, 2.0), couette(0.0025, 2.0), couette(0.0025, 1.0)]
-    if "translate" in args.checks:
-        rows += [translating(0.0025, 2.0), translating(0.0025, 0.5)]
-    if "rest3d" in args.checks:
-        rows += rest3d()
-    for name, value, reference in rows:
-        print(f"| {name} | {value:.5g} | {reference:.5g} | {value / reference:.3f} |", flush=True)
+    checks = {
+        "couette": lambda: [couette(0.005, 2.0), couette(0.0025, 2.0), couette(0.0025, 1.0)],
+        "translate": lambda: [translating(0.0025, 2.0), translating(0.0025, 0.5)],
+        "rest3d": rest3d,
+    }
+    for name in args.checks:
+        for label, value, reference in checks[name]():
+            print(f"| {label} | {value:.5g} | {reference:.5g} | {value / reference:.3f} |", flush=True)
 
 
 if __name__ == "__main__":
