@@ -1,0 +1,149 @@
+"""diffstir-record: a recording session on the rig (docs/hardware.md): grip, dry run, density, stir.
+
+    diffstir-record hardware.adc.port=/dev/ttyACM0 hardware.gripper.port=/dev/ttyUSB0 \\
+        hardware.arm.host=192.168.1.10 'hardware.arm.frame.origin=[0.4,0.0,0.25]' \\
+        calibration=calib/rp-c18-0042.yaml fluid="castor oil" interactive=true
+    diffstir-record hardware/adc=emulated hardware/arm=replay hardware/gripper=emulated \\
+        density.rod_weight=0.5 density.immersed_reading=0.11 out=/tmp/runs stir.duration=3
+
+Configs: conf/record.yaml and conf/hardware/{adc,arm,gripper}/. Exit status: 0 done, 1 error, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import sys
+
+import hydra
+import numpy as np
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from diffstir.hardware import HardwareError, Session, load_calibration, load_trajectory
+from diffstir.recording import CupGeometry, RodGeometry, SensorSpec
+from diffstir.trajectory import Trajectory, circle
+
+DENSITY_FIELDS = {"rod_weight": "N", "immersed_reading": "N", "immersed_depth": "m"}
+
+
+def _programme(cfg: DictConfig) -> Trajectory:
+    """The stirring programme: a trajectory file, or a circle of ``radius`` [m] at ``speed`` [m/s] or
+    ``rev_per_s`` [rev/s] (speed = 2 pi radius rev_per_s)."""
+    if cfg.file:
+        return load_trajectory(cfg.file)
+    speed = cfg.speed if cfg.speed is not None else 2 * math.pi * cfg.radius * cfg.rev_per_s
+    return circle(cfg.radius, speed, cfg.duration, ramp_time=cfg.ramp_time, clockwise=cfg.clockwise,
+                  sample_rate=200.0)
+
+
+def _dry_programme(stir: Trajectory, mode: str, duration: float, lift: float) -> Trajectory:
+    """The dry run: held still at the programme's start (mean), or the programme itself (profile), lifted by
+    ``lift`` [m] out of the fluid."""
+    if mode == "profile":
+        return Trajectory(stir.t, stir.xy, stir.z + lift, stir.angle)
+    t = np.linspace(0.0, duration, max(2, int(duration * 100) + 1))
+    return Trajectory(t, np.broadcast_to(stir.xy[0], (t.size, 2)), stir.z[0] + lift, 0.0)
+
+
+def _density(cfg: DictConfig, depth: float, interactive: bool) -> dict | None:
+    """The density measurement's values from the config (h defaults to the rod's immersion ``depth`` [m]);
+    missing ones are asked for later when interactive."""
+    if cfg.skip:
+        return None
+    values = {k: cfg[k] for k in (*DENSITY_FIELDS, "rod_cross_section")}
+    if values["immersed_depth"] is None:
+        values["immersed_depth"] = depth
+    missing = [k for k in DENSITY_FIELDS if values[k] is None]
+    if missing and not interactive:
+        raise ValueError("density: " + ", ".join(f"density.{k} ({DENSITY_FIELDS[k]})" for k in missing)
+                         + " not set; give them, or density.skip=true, or interactive=true to be asked")
+    return values
+
+
+def _ask_missing(values: dict) -> dict:
+    for key, unit in DENSITY_FIELDS.items():
+        while values[key] is None:
+            text = input(f"{key.replace('_', ' ')} [{unit}]: ")
+            with contextlib.suppress(ValueError):
+                values[key] = float(text)
+    return values
+
+
+def record(cfg: DictConfig) -> Session:
+    """Run the session ``cfg`` describes; returns it (its ``path`` holds everything recorded)."""
+    interactive = bool(cfg.interactive)
+    density = _density(cfg.density, cfg.rig.rod.immersion_depth, interactive)
+    rig = instantiate(cfg.rig)
+    if rig.rod.mesh is not None:
+        raise ValueError("rig.rod.mesh: a recording's rod is a cylinder; record with rig.rod.mesh=null")
+    stir = _programme(cfg.stir)
+    dry = _dry_programme(stir, cfg.dry_run.mode, cfg.dry_run.duration, cfg.dry_run.lift)
+
+    def step(message: str) -> None:
+        if interactive:
+            input(f"{message} [Enter: go on, Ctrl-C: stop] ")
+        else:
+            print(message, flush=True)
+
+    with contextlib.ExitStack() as devices:
+        adc = devices.enter_context(instantiate(cfg.hardware.adc))
+        arm = devices.enter_context(instantiate(cfg.hardware.arm))
+        gripper = (devices.enter_context(instantiate(cfg.hardware.gripper))
+                   if cfg.hardware.gripper._target_ else None)
+        calibration = load_calibration(cfg.calibration) if cfg.calibration else getattr(adc, "calibration", None)
+        if calibration is None:
+            raise ValueError("no force calibration: set calibration=<file> (docs/hardware.md, 'Calibration')")
+        session = Session(
+            cfg.out, adc=adc, arm=arm, calibration=calibration, gripper=gripper, name=cfg.name, resume=cfg.resume,
+            cup=CupGeometry(rig.cup.radius, fill_height=rig.cup.fill_height),
+            rod=RodGeometry(rig.rod.radius, rig.rod.immersion_depth),
+            sensor=SensorSpec(**{**cfg.sensor, "axis": tuple(cfg.sensor.axis) if cfg.sensor.axis else None}),
+            fluid=cfg.fluid, temperature=cfg.temperature, flush_interval=cfg.flush_interval, latency=cfg.latency,
+            config=OmegaConf.to_container(cfg, resolve=True))
+        print(f"session {session.path}", flush=True)
+        with session:
+            if gripper is not None:
+                step("Hold the rod between the gripper's fingers: the gripper initialises and closes on it.")
+                session.grip(cfg.grip.force_percent, timeout=cfg.grip.timeout)
+            if session.baseline is None:
+                step(f"Dry run ({cfg.dry_run.mode}): the rod is held {cfg.dry_run.lift} m above its immersed pose, "
+                     "out of the fluid.")
+                session.dry_run(dry, mode=cfg.dry_run.mode)
+            if session.density is None and density is not None:
+                if interactive:
+                    step("Density: weigh the rod held vertical in air (G), then immersed at rest (R).")
+                session.measure_density(**_ask_missing(density))
+            step("Stir: the cup must be in place; the rod goes to its immersed start pose and stirs.")
+            session.stir(stir)
+    return session
+
+
+def _terminate(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@hydra.main(config_path="../../conf", config_name="record", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    """Console entry point ``diffstir-record``."""
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        session = record(cfg)
+    except KeyboardInterrupt:
+        print("diffstir-record: interrupted; everything recorded so far is kept (partial recordings are marked "
+              "complete: false)", file=sys.stderr)
+        sys.exit(130)
+    except (HardwareError, ValueError, OSError, InstantiationException, OmegaConfBaseException) as exc:
+        cause = exc.__cause__ if isinstance(exc, InstantiationException) and exc.__cause__ else exc
+        print(f"diffstir-record: {cause}", file=sys.stderr)
+        sys.exit(1)
+    steps = session.meta["steps"]
+    print(f"done: {session.path}: {steps['stir'].get('rows', 0)} rows, "
+          f"{steps['stir'].get('skipped_lines', 0)} bad sensor lines skipped", flush=True)
+
+
+if __name__ == "__main__":
+    main()
