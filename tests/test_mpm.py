@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
 from diffstir.mpm import Corotated, SimConfig, StirringSimulator
 from diffstir.rheology import Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw
-from diffstir.rig import Cup, Rig, Rod
+from diffstir.rig import Rig
 from diffstir.trajectory import circle, spin, stationary, translate
-from problems import couette_torque_newtonian, couette_torque_power_law, translating_rod_force
+from problems import couette_torque_newtonian, translating_rod_force
 
 F64 = dict(dtype=torch.float64)
 TINY = SimConfig(dim=2, dx=0.005, sound_speed=2.0, dtype="float64", dt=1e-3, checkpoint_every=7)

@@ -145,8 +145,7 @@ def rod_local(points: Tensor, pose: RodPose) -> Tensor:
     if points.shape[1] == 3:
         rel[:, 2] = points[:, 2] - pose.tip
     c, s = torch.cos(pose.angle), torch.sin(pose.angle)
-    x, y = rel[:, 0], rel[:, 1]
-    rel = rel.clone()
+    x, y = rel[:, 0].clone(), rel[:, 1].clone()
     rel[:, 0], rel[:, 1] = c * x + s * y, -s * x + c * y
     return rel
 

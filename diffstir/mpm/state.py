@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-import torch
 from torch import Tensor
 
 
@@ -31,12 +30,6 @@ class State:
     @classmethod
     def from_tensors(cls, tensors: tuple[Tensor, ...]) -> "State":
         return cls(*tensors)
-
-    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "State":
-        return State(*(t.to(device=device, dtype=dtype) for t in self.tensors()))
-
-    def detach(self) -> "State":
-        return State(*(t.detach() for t in self.tensors()))
 
     @property
     def num_particles(self) -> int:
