@@ -56,6 +56,8 @@ class Rod:
         length: total length [m]; only the immersed part matters to the fluid.
         wall: ``"no_slip"`` or ``"slip"`` condition on the rod's surface.
         mesh: path of a closed mesh in the rod frame (metres, tip at z = 0, axis along z), or None for a cylinder.
+        slip_length: Navier slip length b [m] of a ``"no_slip"`` wall: the fluid slides along the rod at
+            u_slip = b ∂u_t/∂n; 0 (the default) is no-slip.
     """
 
     radius: float = 0.0125
@@ -63,12 +65,18 @@ class Rod:
     length: float = 0.200
     wall: str = "no_slip"
     mesh: str | None = None
+    slip_length: float = 0.0
 
     def __post_init__(self) -> None:
         _positive("rod.radius", self.radius, "m")
         _positive("rod.immersion_depth", self.immersion_depth, "m")
         if self.wall not in ("no_slip", "slip"):
             raise ValueError(f"rod.wall = {self.wall!r}; expected 'no_slip' or 'slip'")
+        if not (isinstance(self.slip_length, (int, float)) and 0 <= self.slip_length <= 0.1):
+            raise ValueError(f"rod.slip_length = {self.slip_length!r}; expected a Navier slip length in m, "
+                             f"0 <= b <= 0.1 (0 is no-slip)")
+        if self.slip_length > 0 and self.wall == "slip":
+            raise ValueError("rod.slip_length > 0 needs rod.wall = 'no_slip'; a 'slip' wall already slips freely")
         if self.radius > 0.5:
             raise ValueError(f"rod.radius = {self.radius} m looks like millimetres; lengths are in metres")
 

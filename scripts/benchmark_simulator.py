@@ -1,70 +1,189 @@
-"""Time the simulator: ms per step forward and forward+backward, and peak memory, in one process.
+"""Time the simulator: ms per step forward and forward+backward, and gradient memory, next to a reference run.
 
-    python scripts/benchmark_simulator.py [--steps 100] [--scenes paper3d slice2d fine3d]
+    python scripts/benchmark_simulator.py [--scenes paper3d slice2d] [--steps 100] [--threads 1]
+                                          [--variants eager compiled] [--reference-tree DIR] [--repeats 3]
+    python scripts/benchmark_simulator.py --gradient-steps 8000 [--scenes paper3d]
 
-The reference run is the forward pass without gradients in the same process; ratios against it are what to
-compare across machines. Peak memory is the process's maximum resident set size (Linux ru_maxrss).
+Every variant of a scene runs in this one process, interleaved (variant A, B, A, B, ...), and the table gives each
+variant's time as a ratio to the first variant (the reference, the eager step by default): on a shared machine the
+absolute ms move with the other jobs, the ratios much less. Variants:
+
+- ``eager``: the simulator as configured, ``SimConfig.compile = False``.
+- ``compiled``: ``SimConfig.compile = True`` (compiled once in an untimed warm-up run).
+- ``reference``: another checkout's simulator (``--reference-tree DIR``, a directory holding a ``diffstir``
+  package, e.g. ``git worktree add /tmp/diffstir-ref <commit>``), imported side by side under another name.
+
+Times are the fastest of ``--repeats`` warm runs (a rollout of ``--steps`` steps; forward without gradients, and
+forward plus the backward pass of mean |F| through the checkpointed rollout). Memory: the bytes of tensors that
+autograd keeps for one step and for one state (the checkpoint of a segment), measured with saved-tensor hooks, and
+from them the memory that a gradient through 8000 steps holds with the configured checkpoint segments:
+ceil(8000 / segment) states plus one recomputed segment's graph. ``peak RSS`` is the process's maximum resident
+set size (Linux ru_maxrss) over the whole run.
+
+``--gradient-steps N`` measures memory directly instead: for each scene (eager, its configured checkpointing), the
+growth of the process's peak resident set size over one N-step gradient of mean |F|, after a 50-step warm-up.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import importlib
+import math
+import os
 import platform
+import re
 import resource
+import shutil
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import torch
 
-from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.rheology import Carreau
-from diffstir.rig import Rig
-from diffstir.trajectory import circle
-
 SCENES = {
-    "paper3d": SimConfig(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45, dt=1e-3, settle_time=0.3),
-    "fine3d": SimConfig(dim=3, dx=0.005, sound_speed=10.0, settle_time=0.3),
-    "slice2d": SimConfig(dim=2, dx=0.0025, sound_speed=2.0),
+    "paper3d": dict(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45, dt=1e-3, settle_time=0.3),
+    "fine3d": dict(dim=3, dx=0.005, sound_speed=10.0, settle_time=0.3),
+    "slice2d": dict(dim=2, dx=0.0025, sound_speed=2.0),
 }
+HORIZON = 8000  # steps: the paper's 8 s recording at 1 ms
 
 
-def run(name: str, config: SimConfig, steps: int) -> dict:
-    law = Carreau(eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
-    sim = StirringSimulator(law, Rig(), config, density=1000.0)
-    probe = circle(0.015, 0.1, 1.0, ramp_time=0.2)
-    dt = sim.time_step(probe)
-    trajectory = circle(0.015, 0.1, steps * dt, ramp_time=0.2)
-    initial = sim.initial_state(trajectory)
-    timings = {}
-    for label, grad in (("forward", False), ("forward+backward", True)):
-        for _ in range(2):  # the second run is the one timed (warm, as inside an optimisation loop)
-            start = time.perf_counter()
-            with torch.set_grad_enabled(grad):
-                result = sim(trajectory, initial=initial)
-                if grad:
-                    result.force.abs().mean().backward()
-            elapsed = time.perf_counter() - start
-        timings[label] = 1e3 * elapsed / len(result.times)
-    return {"scene": name, "particles": initial.num_particles, "grid": "x".join(map(str, sim.scene.grid.shape)),
-            "dt_ms": 1e3 * result.dt, **timings}
+def import_reference(tree: Path):
+    """The ``diffstir`` package of another checkout, importable as ``diffstir_reference``."""
+    target = Path(tempfile.mkdtemp(prefix="diffstir-reference-"))
+    shutil.copytree(tree / "diffstir", target / "diffstir_reference")
+    for path in (target / "diffstir_reference").rglob("*.py"):
+        text = path.read_text()
+        path.write_text(re.sub(r"\bdiffstir(?=[. ])", "diffstir_reference", text))
+    sys.path.insert(0, str(target))
+    return {name: importlib.import_module(f"diffstir_reference.{name}")
+            for name in ("mpm", "rheology", "rig", "trajectory")}
+
+
+def build(variant: str, scene: str, reference) -> tuple:
+    """The simulator, trajectory and settled start of one variant."""
+    modules = reference if variant == "reference" else {
+        "mpm": importlib.import_module("diffstir.mpm"), "rheology": importlib.import_module("diffstir.rheology"),
+        "rig": importlib.import_module("diffstir.rig"), "trajectory": importlib.import_module("diffstir.trajectory")}
+    settings = dict(SCENES[scene])
+    if variant == "compiled":
+        settings["compile"] = True
+    law = modules["rheology"].Carreau(eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
+    sim = modules["mpm"].StirringSimulator(law, modules["rig"].Rig(), modules["mpm"].SimConfig(**settings),
+                                           density=1000.0)
+    return sim, modules["trajectory"].circle
+
+
+def rollout(sim, trajectory, initial, grad: bool) -> float:
+    """Wall time of one rollout [s], with the backward pass of mean |F| when ``grad``."""
+    start = time.perf_counter()
+    with torch.set_grad_enabled(grad):
+        result = sim(trajectory, initial=initial)
+        if grad:
+            result.force.abs().mean().backward()
+    return time.perf_counter() - start
+
+
+def saved_bytes(sim, trajectory, initial) -> tuple[float, float]:
+    """Bytes autograd saves per step without checkpointing, and the bytes of one state."""
+    storages: dict[int, int] = {}
+
+    def pack(t):
+        if isinstance(t, torch.Tensor) and t.device.type != "meta":
+            storages[t.untyped_storage().data_ptr()] = t.untyped_storage().nbytes()
+        return t
+
+    config = sim.config
+    sim.config = config.replace(checkpoint_every=0)
+    try:
+        with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
+            result = sim(trajectory, initial=initial)
+    finally:
+        sim.config = config
+    steps = len(result.times)
+    state = sum(t.numel() * t.element_size() for t in initial.tensors())
+    return sum(storages.values()) / steps, state
+
+
+def gradient_memory(scene: str, steps: int) -> None:
+    """Print the growth of peak RSS [MiB] over one ``steps``-step gradient of the ``eager`` variant of ``scene``."""
+    sim, circle_fn = build("eager", scene, None)
+    dt = sim.time_step(circle_fn(0.015, 0.1, 1.0, ramp_time=0.2))
+    warm, full = (circle_fn(0.015, 0.1, n * dt, ramp_time=0.2) for n in (50, steps))
+    initial = sim.initial_state(full)
+    rollout(sim, warm, initial, grad=True)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    wall = rollout(sim, full, initial, grad=True)
+    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"| {scene} | {steps} | {sim.config.checkpoint_every} | {before:.0f} | {after:.0f} | {after - before:.0f} "
+          f"| {wall:.0f} |", flush=True)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=100)
-    parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--scenes", nargs="+", default=["paper3d", "slice2d"], choices=list(SCENES))
+    parser.add_argument("--variants", nargs="+", default=["eager", "compiled"],
+                        choices=["eager", "compiled", "reference"])
+    parser.add_argument("--reference-tree", type=Path, help="checkout whose diffstir is the 'reference' variant")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--gradient-steps", type=int, help="measure the peak memory of one gradient this long")
     args = parser.parse_args()
+    if "reference" in args.variants and args.reference_tree is None:
+        parser.error("the 'reference' variant needs --reference-tree DIR")
+    reference = import_reference(args.reference_tree) if args.reference_tree else None
     torch.set_num_threads(args.threads)
-    print(f"{datetime.date.today()} {platform.machine()} {platform.processor() or ''} torch {torch.__version__}, "
-          f"{args.threads} threads, {args.steps} steps, float32")
-    print("| scene | particles | grid | dt [ms] | forward [ms/step] | fwd+bwd [ms/step] | ratio |")
-    print("|---|---|---|---|---|---|---|")
-    for name in args.scenes:
-        r = run(name, SCENES[name], args.steps)
-        print(f"| {r['scene']} | {r['particles']} | {r['grid']} | {r['dt_ms']:.3f} | {r['forward']:.2f} | "
-              f"{r['forward+backward']:.2f} | {r['forward+backward'] / r['forward']:.2f} |")
-    print(f"peak resident memory: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+    if args.gradient_steps:
+        print(f"{datetime.date.today()}, torch {torch.__version__}, {args.threads} thread(s), float32, eager")
+        print("| scene | steps | checkpoint segment | peak RSS before [MiB] | after [MiB] | growth [MiB] | wall [s] |")
+        print("|---|---|---|---|---|---|---|")
+        for scene in args.scenes:
+            gradient_memory(scene, args.gradient_steps)
+        return
+    load = os.getloadavg()[0]
+    print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average {load:.1f} at start, "
+          f"torch {torch.__version__}, {args.threads} thread(s), float32, {args.steps} steps per rollout, "
+          f"fastest of {args.repeats}")
+    print("| scene | particles | grid | dt [ms] | variant | forward [ms/step] | fwd+bwd [ms/step] "
+          "| forward ratio | fwd+bwd ratio |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    memory = []
+    for scene in args.scenes:
+        runs = {}
+        for variant in args.variants:
+            sim, circle_fn = build(variant, scene, reference)
+            dt = sim.time_step(circle_fn(0.015, 0.1, 1.0, ramp_time=0.2))
+            trajectory = circle_fn(0.015, 0.1, args.steps * dt, ramp_time=0.2)
+            initial = sim.initial_state(trajectory)
+            for grad in (False, True):  # warm-up (and compilation) outside the timing
+                rollout(sim, trajectory, initial, grad)
+            runs[variant] = (sim, trajectory, initial, {False: math.inf, True: math.inf})
+        for _ in range(args.repeats):
+            for grad in (False, True):
+                for variant, (sim, trajectory, initial, best) in runs.items():
+                    best[grad] = min(best[grad], rollout(sim, trajectory, initial, grad))
+        first = next(iter(runs.values()))[3]
+        for variant, (sim, trajectory, initial, best) in runs.items():
+            steps = round(trajectory.duration / sim.time_step(trajectory))
+            fwd, both = (1e3 * best[g] / steps for g in (False, True))
+            print(f"| {scene} | {initial.num_particles} | {'x'.join(map(str, sim.scene.grid.shape))} | "
+                  f"{1e3 * trajectory.duration / steps:.3f} | {variant} | {fwd:.2f} | {both:.2f} | "
+                  f"{first[False] / best[False]:.2f} | {first[True] / best[True]:.2f} |", flush=True)
+        for variant, (sim, trajectory, initial, _) in runs.items():
+            per_step, state = saved_bytes(sim, trajectory, initial)
+            segment = sim.config.checkpoint_every or HORIZON
+            estimate = math.ceil(HORIZON / segment) * state + min(segment, HORIZON) * per_step
+            memory.append((scene, variant, per_step, state, segment, estimate))
+    print()
+    print("| scene | variant | saved per step [MB] | state [MB] | checkpoint segment [steps] "
+          "| 8000-step gradient [GB] |")
+    print("|---|---|---|---|---|---|")
+    for scene, variant, per_step, state, segment, estimate in memory:
+        print(f"| {scene} | {variant} | {per_step / 1e6:.2f} | {state / 1e6:.3f} | {segment} | {estimate / 1e9:.2f} |")
+    print(f"peak RSS of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
 
 
 if __name__ == "__main__":

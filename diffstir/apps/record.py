@@ -23,6 +23,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from diffstir.apps import CONF_DIR
 from diffstir.hardware import HardwareError, Session, load_calibration, load_trajectory
 from diffstir.recording import CupGeometry, RodGeometry, SensorSpec
 from diffstir.trajectory import Trajectory, circle
@@ -126,7 +127,7 @@ def _terminate(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-@hydra.main(config_path="../../conf", config_name="record", version_base="1.3")
+@hydra.main(config_path=CONF_DIR, config_name="record", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """Console entry point ``diffstir-record``."""
     signal.signal(signal.SIGTERM, _terminate)

@@ -11,12 +11,13 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
+from diffstir.apps import CONF_DIR
 from diffstir.mpm import StirringSimulator
 from diffstir.plots import plot_forces
 from diffstir.trajectory import circle
 
 
-@hydra.main(config_path="../../conf", config_name="simulate", version_base="1.3")
+@hydra.main(config_path=CONF_DIR, config_name="simulate", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)

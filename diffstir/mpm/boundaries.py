@@ -9,6 +9,9 @@ velocity relative to the solid, extrapolated linearly through the surface from a
                                                                   surface, as continuity demands at a no-slip wall)
     slip:     normal     u_rel(node) = −(|φ|/δ) u_rel(probe)       (odd: no penetration)
               tangential u_rel(node) = u_rel(probe)               (even: no shear stress)
+    Navier:   tangential u_rel(node) = (b − |φ|)/(b + δ) u_rel(probe), normal as no-slip: the linear profile
+              through the probe whose wall value is b times its normal gradient (slip length b [m]); b = 0 is
+              no-slip, b → ∞ the tangential part of slip.
 
 This puts the no-slip surface where the geometry is, to second order, instead of half a cell inside the solid as
 marking the solid's nodes with its velocity does. Nodes deeper than the probe distance use their mirror point.
@@ -16,15 +19,15 @@ marking the solid's nodes with its velocity does. Nodes deeper than the probe di
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from ..rig import Cup, Rod
-from .grid import Grid
+from .grid import Grid, outer_weights
 
 PROBE_DISTANCE = 2.0  # cells from the surface to the nearest probe; its linear stencil then lies in the fluid
 BAND = 2.0  # cells: nodes deeper than this inside a solid carry no fluid mass and just take the solid's velocity
@@ -54,20 +57,23 @@ def cup_sdf(cup: Cup, points: Tensor) -> tuple[Tensor, Tensor]:
     r_vec = points[:, :2]
     r = r_vec.norm(dim=-1).clamp_min(1e-12)
     phi = cup.radius - r
-    normal = torch.zeros_like(points)
-    normal[:, :2] = -r_vec / r[:, None]
-    if points.shape[1] == 3:
-        bottom = points[:, 2]
-        use_bottom = bottom < phi
-        phi = torch.where(use_bottom, bottom, phi)
-        up = torch.zeros_like(points)
-        up[:, 2] = 1.0
-        normal = torch.where(use_bottom[:, None], up, normal)
-    return phi, normal
+    inward = -r_vec / r[:, None]
+    if points.shape[1] == 2:
+        return phi, inward
+    bottom = points[:, 2]
+    use_bottom = (bottom < phi)[:, None]
+    normal = torch.cat([torch.where(use_bottom, 0.0, inward), use_bottom.to(points.dtype)], dim=1)  # bottom: up
+    return torch.where(use_bottom[:, 0], bottom, phi), normal
 
 
 class RodShape:
-    """The rod's geometry in its own frame: signed distance (positive in the fluid) with its unit gradient."""
+    """The rod's geometry in its own frame: signed distance (positive in the fluid) with its unit gradient.
+
+    ``axisymmetric``: the shape is a body of revolution about the rod's axis, so turning the rod leaves its
+    distance field unchanged.
+    """
+
+    axisymmetric = False
 
     def sdf(self, local: Tensor) -> tuple[Tensor, Tensor]:
         raise NotImplementedError
@@ -76,6 +82,8 @@ class RodShape:
 class CylinderRod(RodShape):
     """A vertical cylinder of ``radius`` [m] whose flat tip is at local z = 0 (in 2-D, a disc)."""
 
+    axisymmetric = True
+
     def __init__(self, radius: float):
         self.radius = radius
 
@@ -83,19 +91,18 @@ class CylinderRod(RodShape):
         r_vec = local[:, :2]
         r = r_vec.norm(dim=-1).clamp_min(1e-12)
         d_r = r - self.radius
-        radial = torch.zeros_like(local)
-        radial[:, :2] = r_vec / r[:, None]
+        radial = r_vec / r[:, None]
         if local.shape[1] == 2:
             return d_r, radial
         d_z = -local[:, 2]  # positive below the tip
-        down = torch.zeros_like(local)
-        down[:, 2] = -1.0
-        corner = torch.sqrt(d_r.clamp_min(0) ** 2 + d_z.clamp_min(0) ** 2).clamp_min(1e-12)
+        out_r, out_z = d_r.clamp_min(0), d_z.clamp_min(0)
+        corner = torch.sqrt(out_r**2 + out_z**2).clamp_min(1e-12)
         outside_both = (d_r > 0) & (d_z > 0)
         phi = torch.where(outside_both, corner, torch.maximum(d_r, d_z))
-        corner_normal = (d_r.clamp_min(0)[:, None] * radial + d_z.clamp_min(0)[:, None] * down) / corner[:, None]
-        normal = torch.where(outside_both[:, None], corner_normal, torch.where((d_r > d_z)[:, None], radial, down))
-        return phi, normal
+        # normal = c_r (radial, 0) + c_z (0, 0, −1): towards the tip's rim below and beside it, else the nearer face
+        c_r = torch.where(outside_both, out_r / corner, (d_r > d_z).to(local.dtype))
+        c_z = torch.where(outside_both, out_z / corner, (d_r <= d_z).to(local.dtype))
+        return phi, torch.cat([c_r[:, None] * radial, -c_z[:, None]], dim=1)
 
 
 class MeshRod(RodShape):
@@ -127,8 +134,8 @@ class MeshRod(RodShape):
         if local.shape[1] != 3:
             raise ValueError("a mesh rod needs sim.dim = 3")
         field = torch.cat([self.phi[..., None], self.gradient], -1).to(local)
-        shape = tuple(self.phi.shape)
-        sample = interpolate_linear(self.origin.to(local), self.spacing, shape, field.reshape(-1, 4), local,
+        samples = Grid(origin=self.origin.to(local), shape=tuple(self.phi.shape), dx=self.spacing)
+        sample = interpolate_linear(samples, field.reshape(-1, 4), local,
                                     outside=torch.tensor([4 * self.spacing, 0, 0, 0], dtype=local.dtype))
         normal = sample[:, 1:] / sample[:, 1:].norm(dim=-1, keepdim=True).clamp_min(1e-12)
         return sample[:, 0], normal
@@ -138,89 +145,205 @@ def rod_shape(rod: Rod, dx: float) -> RodShape:
     return MeshRod(rod.mesh, spacing=dx / 4) if rod.mesh else CylinderRod(rod.radius)
 
 
+def rod_offset(points: Tensor, pose: RodPose) -> Tensor:
+    """Points relative to the rod's tip on its axis [m], in cup-frame axes, (Q, d)."""
+    if points.shape[1] == 2:
+        return points - pose.axis
+    return points - torch.cat([pose.axis, pose.tip.reshape(1)])
+
+
+def _turn(vectors: Tensor, c: Tensor, s: Tensor) -> Tensor:
+    """Vectors (Q, d) turned about the vertical axis by the angle whose cosine and sine are c, s."""
+    x, y = vectors[:, 0], vectors[:, 1]
+    return torch.cat([torch.stack([c * x - s * y, s * x + c * y], dim=-1), vectors[:, 2:]], dim=1)
+
+
 def rod_local(points: Tensor, pose: RodPose) -> Tensor:
     """Points in the rod's frame: origin at the tip on the axis, turned by −angle."""
-    rel = points.clone()
-    rel[:, :2] = points[:, :2] - pose.axis
-    if points.shape[1] == 3:
-        rel[:, 2] = points[:, 2] - pose.tip
-    c, s = torch.cos(pose.angle), torch.sin(pose.angle)
-    x, y = rel[:, 0].clone(), rel[:, 1].clone()
-    rel[:, 0], rel[:, 1] = c * x + s * y, -s * x + c * y
-    return rel
+    return _turn(rod_offset(points, pose), torch.cos(pose.angle), -torch.sin(pose.angle))
 
 
 def rod_sdf(shape: RodShape, points: Tensor, pose: RodPose) -> tuple[Tensor, Tensor]:
-    """Signed distance to the rod [m] (positive in the fluid) and its unit gradient, in the cup frame."""
+    """Signed distance to the rod [m] (positive in the fluid) and its unit gradient, in the cup frame.
+
+    An axisymmetric shape's distance field does not turn with the rod, so its frame is only shifted."""
+    if shape.axisymmetric:
+        return shape.sdf(rod_offset(points, pose))
     phi, n_local = shape.sdf(rod_local(points, pose))
     return phi, rod_to_cup(n_local, pose)
 
 
 def rod_to_cup(local: Tensor, pose: RodPose) -> Tensor:
     """Rod-frame vectors turned by the rod's angle into the cup frame (directions; add the axis for points)."""
-    c, s = torch.cos(pose.angle), torch.sin(pose.angle)
-    out = local.clone()
-    out[:, 0], out[:, 1] = c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1]
-    return out
+    return _turn(local, torch.cos(pose.angle), torch.sin(pose.angle))
 
 
 def rod_velocity(points: Tensor, pose: RodPose) -> Tensor:
     """Rigid-body velocity of the rod at ``points`` [m/s]: V + Ω ẑ × (x − axis)."""
     rel = points[:, :2] - pose.axis
-    v = pose.velocity.expand(points.shape[0], -1).clone()
-    v[:, 0] = v[:, 0] - pose.angular_velocity * rel[:, 1]
-    v[:, 1] = v[:, 1] + pose.angular_velocity * rel[:, 0]
-    return v
+    spin = pose.angular_velocity * torch.stack([-rel[:, 1], rel[:, 0]], dim=-1)
+    return pose.velocity + (spin if points.shape[1] == 2 else F.pad(spin, (0, 1)))
 
 
-def interpolate_linear(origin: Tensor, dx: float, shape: tuple[int, ...], field: Tensor, points: Tensor,
-                       outside: Tensor | None = None) -> Tensor:
+def linear_stencil(grid: Grid, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Multilinear interpolation stencil of ``points`` [m], (Q, d), on ``grid``.
+
+    Returns the flat indices of the 2^d corner nodes of each point's cell (Q, 2^d), their weights [1] (Q, 2^d)
+    (rows sum to 1) and whether the point lies inside the grid (Q,); outside points use the nearest cell, clamped.
+    """
+    cell = (points - grid.origin) / grid.dx
+    base = torch.floor(cell).detach().long()
+    inside = ((base >= 0) & (base <= grid.last_cell)).all(dim=1)
+    base = torch.minimum(base.clamp_min(0), grid.last_cell)
+    frac = (cell - base).clamp(0.0, 1.0)
+    index = (base @ grid.flat_strides)[:, None] + grid.corner_offsets[None, :]
+    return index, outer_weights(torch.stack([1.0 - frac, frac], dim=-1)), inside
+
+
+def interpolate_linear(grid: Grid, field: Tensor, points: Tensor, outside: Tensor | None = None) -> Tensor:
     """Multilinear interpolation of a node ``field`` (num_nodes, c) at ``points`` [m], (Q, d) -> (Q, c).
 
     Points outside the grid take the value ``outside`` (default: clamped to the nearest cell).
     """
-    d = points.shape[1]
-    size = torch.tensor(shape, device=points.device)
-    cell = (points - origin) / dx
-    base = torch.floor(cell).detach().long()
-    inside = ((base >= 0) & (base <= size - 2)).all(dim=1)
-    base = torch.minimum(base.clamp_min(0), size - 2)
-    frac = (cell - base).clamp(0.0, 1.0)
-    strides = [1] * d
-    for a in range(d - 2, -1, -1):
-        strides[a] = strides[a + 1] * shape[a + 1]
-    strides_t = torch.tensor(strides, device=points.device)
-    result = 0.0
-    for corner in itertools.product((0, 1), repeat=d):
-        c = torch.tensor(corner, device=points.device)
-        w = torch.where(c.bool(), frac, 1.0 - frac).prod(dim=1)
-        idx = (base + c) @ strides_t
-        result = result + w[:, None] * field.index_select(0, idx)
+    index, weight, inside = linear_stencil(grid, points)
+    corners = field.index_select(0, index.reshape(-1)).view(*index.shape, field.shape[1])
+    result = (weight[:, None, :] @ corners).squeeze(1)
     if outside is not None:
         result = torch.where(inside[:, None], result, outside.to(result))
     return result
 
 
-def ghost_velocity(
-    grid: Grid, fluid_field: Tensor, nodes: Tensor, phi: Tensor, normal: Tensor, wall_velocity, slip: bool
-) -> Tensor:
-    """Ghost-fluid velocities [m/s] of solid ``nodes`` (positions, (Q, d)) with signed distances ``phi`` < 0.
+def ghost_matrix(depth: Tensor, delta: Tensor, normal: Tensor, slip: bool,
+                 slip_length: float | Tensor = 0.0) -> Tensor:
+    """G, the ghost node's velocity relative to the wall per unit relative velocity at its probe [1], (Q, d, d):
+    G = a_n n nᵀ + a_t (I − n nᵀ), with (module docstring, r = |φ|/δ, ``depth`` |φ| [m], ``delta`` δ [m])
 
-    ``fluid_field`` holds [mask·v, mask] on every node, mask = 1 on nodes that carry fluid and lie outside every
-    solid, so the probe interpolates the fluid's velocity only. ``wall_velocity(points)`` is the solid's velocity.
+        no-slip: a_n = r², a_t = −r;     slip: a_n = −r, a_t = 1;     Navier (slip length b [m]): a_n = r²,
+        a_t = (b − |φ|)/(b + δ).
+
+    ``slip_length`` (float or differentiable 0-d tensor, ignored when ``slip``) selects Navier partial slip.
     """
+    ratio = depth / delta
+    if slip:
+        a_n, a_t = -ratio, torch.ones_like(ratio)
+    elif isinstance(slip_length, Tensor) or slip_length > 0:
+        a_n, a_t = ratio**2, (slip_length - depth) / (slip_length + delta)
+    else:
+        a_n, a_t = ratio**2, -ratio
+    nn_t = normal[:, :, None] * normal[:, None, :]
+    eye = torch.eye(normal.shape[1], dtype=normal.dtype, device=normal.device)
+    return (a_n - a_t)[:, None, None] * nn_t + a_t[:, None, None] * eye
+
+
+@dataclass
+class GhostBand:
+    """Solid nodes with their probes: the geometry of the ghost-fluid extension, which does not depend on the flow.
+
+    Attributes:
+        target: flat indices of the solid nodes, (Q,) int64.
+        nodes: their positions [m], (Q, d).
+        probes: the probe points, a distance δ = max(|φ|, ``PROBE_DISTANCE`` dx) outside the surface [m], (Q, d).
+        source: flat indices of the probes' 2^d interpolation nodes, (Q, 2^d) int64.
+        weight: their multilinear weights [1], (Q, 2^d).
+        matrix: ``ghost_matrix`` of each node [1], (Q, d, d).
+    """
+
+    target: Tensor
+    nodes: Tensor
+    probes: Tensor
+    source: Tensor
+    weight: Tensor
+    matrix: Tensor
+
+
+def ghost_band(grid: Grid, target: Tensor, nodes: Tensor, phi: Tensor, normal: Tensor, slip: bool,
+               slip_length: float | Tensor = 0.0) -> GhostBand:
+    """The ``GhostBand`` of solid ``nodes`` (positions [m], (Q, d), flat indices ``target``) with signed distances
+    ``phi`` <= 0 [m] and outward unit normals ``normal`` (into the fluid)."""
     depth = (-phi).clamp_min(0.0)
     delta = depth.clamp_min(PROBE_DISTANCE * grid.dx)
     probes = nodes + (depth + delta)[:, None] * normal
-    sample = interpolate_linear(grid.origin, grid.dx, grid.shape, fluid_field, probes)
-    weight = sample[:, -1:]
-    u_probe = torch.where(weight > 1e-6, sample[:, :-1] / weight.clamp_min(1e-6), 0.0)
-    u_rel = torch.where(weight > 1e-6, u_probe - wall_velocity(probes), 0.0)
-    ratio = (depth / delta)[:, None]
-    u_n = (u_rel * normal).sum(-1, keepdim=True) * normal
-    u_t = u_rel - u_n
-    if slip:
-        ghost_rel = -ratio * u_n + u_t
-    else:
-        ghost_rel = ratio**2 * u_n - ratio * u_t
-    return wall_velocity(nodes) + ghost_rel
+    source, weight, _ = linear_stencil(grid, probes)
+    return GhostBand(target=target, nodes=nodes, probes=probes, source=source, weight=weight,
+                     matrix=ghost_matrix(depth, delta, normal, slip, slip_length))
+
+
+@dataclass
+class GhostOperator:
+    """Ghost-fluid velocities of solid nodes as an affine map of the fluid's node velocities v [m/s]:
+
+        v(target_q) = offset_q + G_q Σ_c W_qc v(source_qc)        for the targets that are ``active``
+
+    where W interpolates the fluid's velocity at the probe from the nodes that carry fluid only (its weights are
+    renormalised over them), and offset_q = u_wall(node_q) − G_q u_wall(probe_q) (zero where the probe sees no
+    fluid). The fluid mask is fixed within a step, so one operator serves every boundary pass of the step.
+    Inactive targets (``active`` False; None: all active) keep their velocity.
+    """
+
+    target: Tensor
+    source: Tensor
+    weight: Tensor
+    matrix: Tensor
+    offset: Tensor
+    active: Tensor | None = None
+
+    @classmethod
+    def of(cls, band: GhostBand, fluid: Tensor, wall_velocity=None, active: Tensor | None = None) -> "GhostOperator":
+        """The operator of ``band`` for node fluid mask ``fluid`` (num_nodes,) float, 1 on nodes that carry fluid
+        outside every solid; ``wall_velocity(points)`` [m/s] is the solid's velocity (None: at rest); ``active``
+        (Q,) bool marks the band's nodes that are inside the solid (None: all)."""
+        w = band.weight * fluid[band.source]
+        total = w.sum(1, keepdim=True)
+        seen = total > 1e-6
+        w = torch.where(seen, w / total.clamp_min(1e-6), 0.0)
+        if wall_velocity is None:
+            offset = torch.zeros_like(band.nodes)
+        else:
+            wall_node, wall_probe = wall_velocity(torch.cat([band.nodes, band.probes])).chunk(2)
+            offset = wall_node - seen * (band.matrix @ wall_probe[:, :, None]).squeeze(-1)
+        return cls(target=band.target, source=band.source, weight=w, matrix=band.matrix, offset=offset,
+                   active=active)
+
+    def __call__(self, v: Tensor) -> Tensor:
+        """``v`` (num_nodes, d) with the ghost velocities of the targets in place [m/s]."""
+        q, k = self.source.shape
+        corners = v.index_select(0, self.source.reshape(-1)).view(q, k, v.shape[1])
+        probe = (self.weight[:, None, :] @ corners).transpose(1, 2)  # (Q, d, 1)
+        ghost = self.offset + (self.matrix @ probe).squeeze(-1)
+        if self.active is not None:
+            ghost = torch.where(self.active[:, None], ghost, v.index_select(0, self.target))
+        return v.index_copy(0, self.target, ghost)
+
+
+@dataclass(frozen=True)
+class RodWindow:
+    """A fixed block of grid nodes that holds every node inside the rod wherever its axis is: the grid's full
+    height, and ceil(2 R / dx) + 2 nodes along each horizontal axis, R the rod's bounding radius [m]. A fixed node
+    count keeps a step's tensor shapes constant (one compiled graph, no data-dependent sizes) and confines the rod's
+    distance field and ghost nodes to the nodes near it.
+
+    Attributes:
+        offsets: flat index of each window node relative to the window's first node, (W,) int64.
+        reach: R [m].
+        last_start: the largest index of the window's first node along each horizontal axis that keeps it on the
+            grid, (2,) int64.
+    """
+
+    offsets: Tensor
+    reach: float
+    last_start: Tensor
+
+    @classmethod
+    def of(cls, grid: Grid, reach: float) -> "RodWindow":
+        width = min(int(np.ceil(2 * reach / grid.dx)) + 2, *grid.shape[:2])
+        sizes = [width, width, *grid.shape[2:]]
+        block = torch.stack(torch.meshgrid(*[torch.arange(n, device=grid.origin.device) for n in sizes],
+                                           indexing="ij"), dim=-1).reshape(-1, grid.dim)
+        last = torch.tensor(grid.shape[:2], device=grid.origin.device) - width
+        return cls(offsets=block @ grid.flat_strides, reach=reach, last_start=last)
+
+    def nodes(self, grid: Grid, axis: Tensor) -> Tensor:
+        """Flat indices of the window's nodes for the rod's axis at ``axis`` [m], (W,) int64."""
+        start = torch.floor((axis - self.reach - grid.origin[:2]) / grid.dx).detach().long()
+        start = torch.minimum(start.clamp_min(0), self.last_start)
+        return start @ grid.flat_strides[:2] + self.offsets

@@ -31,6 +31,10 @@ class SimConfig:
         checkpoint_every: steps per gradient-checkpoint segment; 0 keeps every step's graph (more memory).
         dtype: ``"float32"`` or ``"float64"``.
         device: torch device string, e.g. ``"cpu"`` or ``"cuda"``.
+        compile: run each step through ``torch.compile`` (inductor, static shapes, scalar C++ kernels). Costs
+            tens of seconds of compilation per scene, law type and time step, then forward steps run 1.5-3x and
+            forward + backward 1.5-2.5x faster than eager on the 2-core CPU (docs/benchmarks.md); worth it for
+            long rollouts and repeated fits of one scene, not for a one-off short simulation.
     """
 
     dim: Literal[2, 3] = 3
@@ -47,6 +51,7 @@ class SimConfig:
     checkpoint_every: int = 25
     dtype: Literal["float32", "float64"] = "float32"
     device: str = "cpu"
+    compile: bool = False
 
     def __post_init__(self) -> None:
         if self.dim not in (2, 3):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 from torch import Tensor
@@ -41,16 +42,39 @@ class Grid:
             strides[a] = strides[a + 1] * self.shape[a + 1]
         return torch.tensor(strides, dtype=torch.int64, device=self.origin.device)
 
+    @cached_property
+    def flat_strides(self) -> Tensor:
+        """``strides()``, built once."""
+        return self.strides()
+
+    @cached_property
+    def corner_offsets(self) -> Tensor:
+        """Flat index offsets of a cell's 2^d corners from its lowest corner, (2^d,) int64, built once."""
+        return self.stencil_offsets(2) @ self.flat_strides
+
+    @cached_property
+    def last_cell(self) -> Tensor:
+        """Index of the last cell along each axis, shape − 2, (d,) int64, built once."""
+        return torch.tensor(self.shape, device=self.origin.device) - 2
+
     def node_positions(self) -> Tensor:
         """Positions of all nodes in flat order [m], (num_nodes, d)."""
         axes = [torch.arange(s, dtype=self.origin.dtype, device=self.origin.device) for s in self.shape]
         mesh = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, self.dim)
         return self.origin + mesh * self.dx
 
-    def stencil_offsets(self) -> Tensor:
-        """The 3^d node offsets of the quadratic stencil, (3^d, d) int64."""
-        return torch.tensor(list(itertools.product(range(3), repeat=self.dim)), dtype=torch.int64,
+    def stencil_offsets(self, width: int = 3) -> Tensor:
+        """The width^d node offsets of a stencil (3: quadratic B-spline, 2: cell corners), in flat order with the
+        first axis slowest, (width^d, d) int64."""
+        return torch.tensor(list(itertools.product(range(width), repeat=self.dim)), dtype=torch.int64,
                             device=self.origin.device)
+
+    def cell_corners(self) -> Tensor:
+        """Flat node index of the 2^d corners of every cell, (cells, 2^d) int64; cells in flat (row-major) order."""
+        axes = [torch.arange(s - 1, device=self.origin.device) for s in self.shape]
+        lower = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, self.dim)
+        strides = self.strides()
+        return (lower @ strides)[:, None] + (self.stencil_offsets(2) @ strides)[None, :]
 
 
 @dataclass
@@ -68,15 +92,25 @@ class Stencil:
     frac: Tensor
 
 
-def quadratic_stencil(grid: Grid, x: Tensor, offsets: Tensor, strides: Tensor) -> Stencil:
-    """Quadratic B-spline weights N(x) = 3/4 - x², (3/2 - |x|)²/2 of particles at ``x`` [m], (N, d)."""
+def outer_weights(w1d: Tensor) -> Tensor:
+    """Tensor-product weights of a stencil from per-axis weights w1d (N, d, width): (N, width^d), first axis
+    slowest (the order of ``Grid.stencil_offsets``)."""
+    n, d, width = w1d.shape
+    weight = w1d[:, 0, :]
+    for a in range(1, d):
+        weight = (weight[:, :, None] * w1d[:, a, None, :]).reshape(n, -1)
+    return weight
+
+
+def quadratic_stencil(grid: Grid, x: Tensor, offset_index: Tensor, strides: Tensor) -> Stencil:
+    """Quadratic B-spline weights N(x) = 3/4 - x², (3/2 - |x|)²/2 of particles at ``x`` [m], (N, d).
+
+    ``offset_index`` is the flat index offset of each stencil node from the base node, (3^d,) int64
+    (``stencil_offsets() @ strides``); ``strides`` the grid's flat-index strides.
+    """
     cell = (x - grid.origin) / grid.dx
     base = torch.floor(cell - 0.5).detach()
     frac = cell - base
     w1d = torch.stack([0.5 * (1.5 - frac) ** 2, 0.75 - (frac - 1.0) ** 2, 0.5 * (frac - 0.5) ** 2], dim=-1)  # (N,d,3)
-    # product over axes of the 1-D weight picked by each stencil offset
-    weight = torch.ones(x.shape[0], offsets.shape[0], dtype=x.dtype, device=x.device)
-    for a in range(grid.dim):
-        weight = weight * w1d[:, a, :].index_select(1, offsets[:, a])
-    index = (base.long() @ strides)[:, None] + (offsets @ strides)[None, :]
-    return Stencil(index=index, weight=weight, frac=frac)
+    index = (base.long() @ strides)[:, None] + offset_index[None, :]
+    return Stencil(index=index, weight=outer_weights(w1d), frac=frac)

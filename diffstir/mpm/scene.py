@@ -13,12 +13,13 @@ import torch
 from torch import nn
 
 from ..rig import Rig
-from .boundaries import BAND, RodPose, cup_sdf, rod_sdf, rod_shape
+from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, rod_sdf, rod_shape
 from .config import SimConfig
 from .grid import Grid
 from .materials import deviatoric_rate_of_strain
 from .state import State
 from .step import Scene, step
+from .viscous import CellStencil
 
 PADDING = 3  # cells of grid beyond the cup on every side: the ghost band and the stencil's reach
 
@@ -46,10 +47,23 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     if d == 3:
         gravity[2] = -rig.gravity
     cells_volume = (dx / config.particles_per_cell) ** d
+    offsets = grid.stencil_offsets()
+    cup_nodes = torch.nonzero(reach).squeeze(1)
+    rod = rod_shape(rig.rod, dx)
+    mass_row = torch.zeros(1, 1, d + 1, dtype=dtype, device=device)
+    mass_row[..., d] = density * cells_volume
+    # a particle's base node (floor(x/dx − 1/2)) and its stencil's last node (+2) must lie on the grid
+    highest = grid.origin + (torch.tensor(shape, dtype=dtype, device=device) - 1.5001) * dx
     return Scene(
-        grid=grid, offsets=grid.stencil_offsets(), strides=grid.strides(), nodes=nodes, cup=cup,
-        cup_phi=cup_phi, cup_normal=cup_normal, cup_nodes=torch.nonzero(reach).squeeze(1),
-        rod=rod_shape(rig.rod, dx), rod_slip=rig.rod.wall == "slip",
+        grid=grid, offset_index=offsets @ grid.strides(),
+        stencil_points=torch.cat([offsets, torch.ones(len(offsets), 1, dtype=torch.int64, device=device)], 1).to(dtype),
+        eye=torch.eye(d, dtype=dtype, device=device), mass_row=mass_row, cells=CellStencil.of(grid),
+        particle_bounds=torch.stack([grid.origin + 0.5 * dx, highest]),
+        strides=grid.strides(), nodes=nodes, cup=cup, cup_phi=cup_phi,
+        cup_band=ghost_band(grid, cup_nodes, nodes[cup_nodes], cup_phi[cup_nodes], cup_normal[cup_nodes],
+                            slip=cup.wall == "slip"),
+        rod=rod, rod_window=RodWindow.of(grid, rod.radius), rod_slip=rig.rod.wall == "slip",
+        rod_slip_length=rig.rod.slip_length,
         particle_mass=density * cells_volume, particle_volume=cells_volume, node_mass=density * dx**d,
         bulk_modulus=bulk_modulus,
         gravity=gravity, viscosity_cap=config.viscosity_cap,

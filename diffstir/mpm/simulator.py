@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import Tensor, nn
-from torch.utils.checkpoint import checkpoint
 
 from ..rig import Rig
 from ..trajectory import Trajectory
@@ -75,6 +74,10 @@ class StirringSimulator(nn.Module):
         self.density = float(density)
         self.cache_dir = cache_dir
         self.scene: Scene = build_scene(self.rig, self.config, self.density)
+        # scalar kernels (simdlen 1): inductor's vectorised CPU code was slower than eager on this scene's small
+        # tensors (measured, docs/benchmarks.md)
+        self._step = (torch.compile(step, dynamic=False, options={"cpp.simdlen": 1}) if self.config.compile
+                      else step)
         self.material.to(device=self.config.torch_device, dtype=self.config.torch_dtype)
 
     @property
@@ -97,9 +100,13 @@ class StirringSimulator(nn.Module):
         return trajectory.duration / steps
 
     def initial_state(self, trajectory: Trajectory) -> State:
-        """The settled fluid around the rod at the trajectory's first pose."""
+        """The settled fluid around the rod at the trajectory's first pose, with the material's initial state
+        (``material.initial_material_state(scene)``) for a material that has one."""
         pose = self._poses(trajectory, np.array([trajectory.t[0], trajectory.t[0] + 1e-3]))[0]
-        return settled_state(self.scene, self.rig, self.config, self.density, pose, self.cache_dir)
+        state = settled_state(self.scene, self.rig, self.config, self.density, pose, self.cache_dir)
+        if hasattr(self.material, "initial_material_state"):
+            state.material = self.material.initial_material_state(self.scene)
+        return state
 
     def forward(self, trajectory: Trajectory, *, initial: State | None = None,
                 snapshot_every: int = 0) -> SimResult:
@@ -118,24 +125,34 @@ class StirringSimulator(nn.Module):
             def run(*tensors, start=start, stop=stop):
                 s, f, q = State.from_tensors(tensors), [], []
                 for k in range(start, stop):
-                    s, force, torque = step(self.scene, self.material, s, poses[k], dt)
+                    s, force, torque = self._step(self.scene, self.material, s, poses[k], dt)
                     self._check_finite(s, k, dt)
                     f.append(force)
                     q.append(torque)
                 return (*s.tensors(), torch.stack(f), torch.stack(q))
 
             if self.config.checkpoint_every and torch.is_grad_enabled():
-                out = checkpoint(run, *state.tensors(), use_reentrant=False)
+                tensors = state.tensors()
+                out = _Segment.apply(run, len(tensors), *tensors, *self._differentiable_inputs())
             else:
                 out = run(*state.tensors())
-            state = State.from_tensors(out[:4])
-            forces.append(out[4])
-            torques.append(out[5])
+            state = State.from_tensors(out[:-2])
+            forces.append(out[-2])
+            torques.append(out[-1])
             if snapshot_every and (stop // snapshot_every > start // snapshot_every or start == 0):
                 snapshots.append(state.x.detach().clone())
         mid = torch.as_tensor(times[:-1] + 0.5 * dt, dtype=self.config.torch_dtype, device=state.x.device)
         return SimResult(times=mid, force=torch.cat(forces), torque=torch.cat(torques), dt=dt, state=state,
                          snapshots=snapshots, per_unit_length=self.config.dim == 2)
+
+    def _differentiable_inputs(self) -> list[Tensor]:
+        """What a rollout can be differentiated with respect to besides its initial state: the material's
+        parameters and a differentiable rod slip length."""
+        inputs = [p for p in self.parameters() if p.requires_grad]
+        slip = self.scene.rod_slip_length
+        if isinstance(slip, Tensor) and slip.requires_grad:
+            inputs.append(slip)
+        return inputs
 
     def _poses(self, trajectory: Trajectory, times: np.ndarray) -> list[RodPose]:
         """Mid-step rod poses and velocities for the steps between consecutive ``times``."""
@@ -175,6 +192,38 @@ class StirringSimulator(nn.Module):
             f"the simulation became non-finite at step {k} (t = {k * dt:.4g} s, dt = {dt:.3g} s) with "
             f"{type(law).__name__} parameters {params}; try a smaller sim.cfl or sim.viscous_safety"
         )
+
+
+class _Segment(torch.autograd.Function):
+    """A checkpointed rollout segment: its forward keeps no graph at all, its backward recomputes the segment
+    with gradients and differentiates it.
+
+    ``torch.utils.checkpoint`` (non-reentrant) drops a segment's saved tensors but keeps its autograd graph, a few
+    hundred nodes per step: about 0.3-0.9 MB per step on the paper's scene, several GB over 8000 steps. Here only
+    the segment's inputs are kept. Gradients flow to the state tensors and to ``params`` (the simulator's
+    ``_differentiable_inputs``); a tensor that requires grad and reaches the step by another way would get none.
+    """
+
+    @staticmethod
+    def forward(ctx, run, num_state: int, *inputs: Tensor):
+        ctx.run, ctx.num_state = run, num_state
+        ctx.save_for_backward(*inputs)
+        with torch.no_grad():
+            return run(*(t.detach() for t in inputs[:num_state]))
+
+    @staticmethod
+    def backward(ctx, *grad_outputs: Tensor):
+        inputs = ctx.saved_tensors
+        # every state tensor is recomputed as requiring grad, also the rollout's initial state, so that a compiled
+        # step sees the same inputs in every segment
+        state = [t.detach().requires_grad_(t.is_floating_point()) for t in inputs[:ctx.num_state]]
+        wrt = [t for t in (*state, *inputs[ctx.num_state:]) if t.requires_grad]
+        with torch.enable_grad():
+            pairs = [(out, grad) for out, grad in zip(ctx.run(*state), grad_outputs) if out.requires_grad]
+        grads = iter(torch.autograd.grad([out for out, _ in pairs], wrt, [grad for _, grad in pairs],
+                                         allow_unused=True) if wrt and pairs else [None] * len(wrt))
+        per_input = [next(grads) if t.requires_grad else None for t in (*state, *inputs[ctx.num_state:])]
+        return (None, None, *(g if needed else None for g, needed in zip(per_input, ctx.needs_input_grad[2:])))
 
 
 def simulate(fluid: nn.Module, trajectory: Trajectory, *, rig: Rig | None = None, config: SimConfig | None = None,

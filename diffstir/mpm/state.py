@@ -16,16 +16,20 @@ class State:
         v: velocities [m/s], (N, d).
         C: affine velocity field (APIC/MLS), the particle's velocity gradient [1/s], (N, d, d).
         J: volume ratio (current / rest volume) [1], (N,).
+        material: the material's own state, or None for a memoryless material: any tensor that the material
+            evolves each step (``grid_update`` passes it to ``material.shear_stress(..., state=...)``), e.g. a
+            structure parameter or a stress field on the grid cells (see ``diffstir.lab.physics``).
     """
 
     x: Tensor
     v: Tensor
     C: Tensor
     J: Tensor
+    material: Tensor | None = None
 
     def tensors(self) -> tuple[Tensor, ...]:
-        """The state's tensors in field order (for checkpointing)."""
-        return tuple(getattr(self, f.name) for f in fields(self))
+        """The state's tensors in field order (for checkpointing); ``material`` only when present."""
+        return tuple(getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None)
 
     @classmethod
     def from_tensors(cls, tensors: tuple[Tensor, ...]) -> "State":

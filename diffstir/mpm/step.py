@@ -13,11 +13,12 @@ import torch
 from torch import Tensor
 
 from ..rig import Cup
-from .boundaries import RodPose, RodShape, cup_sdf, ghost_velocity, rod_sdf, rod_velocity
+from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow, cup_sdf, ghost_band, rod_sdf,
+                         rod_velocity)
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
 from .state import State
-from .viscous import cell_max, cell_min, cell_velocity_gradient, nodal_forces
+from .viscous import CellStencil, cell_any, cell_min, cell_velocity_gradient, nodal_forces
 
 MASS_FLOOR = 1e-12  # kg: nodes lighter than this carry no fluid
 
@@ -26,28 +27,46 @@ MASS_FLOOR = 1e-12  # kg: nodes lighter than this carry no fluid
 class Scene:
     """What stays fixed over a rollout: grid, solids, particle mass and volume, bulk modulus, gravity.
 
+    Everything a step needs that does not change within a rollout is built here once (index tables, constant
+    matrices in the simulation's dtype), so that a step constructs no tensors from Python values.
+
     Attributes:
-        grid: the background grid.
-        cup: the cup; ``cup_phi``/``cup_normal`` its signed distance [m] and normal at every node.
-        cup_nodes: flat indices of nodes inside the cup's solid within reach of the fluid.
-        rod: the rod's shape; ``rod_slip`` whether its surface is a slip wall.
+        grid: the background grid; ``nodes`` the node positions [m] (num_nodes, d), ``strides`` its flat-index
+            strides (d,) int64.
+        offset_index: flat index offset of each quadratic-stencil node from the particle's base node, (3^d,) int64.
+        stencil_points: the stencil's node offsets in cells with a trailing 1, [o_k, 1], (3^d, d + 1).
+        eye: the identity matrix, (d, d).
+        mass_row: [0, …, 0, particle mass] [kg], (1, 1, d + 1): the mass row of the p2g transfer matrix.
+        cells: the grid's cells as finite elements (``viscous.CellStencil``).
+        particle_bounds: lowest and highest particle position whose stencil stays on the grid [m], (2, d).
+        cup: the cup; ``cup_phi`` its signed distance at every node [m]; ``cup_band`` its solid nodes within reach
+            of the fluid with their ghost-fluid probes (``boundaries.GhostBand``).
+        rod: the rod's shape; ``rod_slip`` whether its surface is a slip wall; ``rod_window`` the block of nodes
+            that holds the rod wherever it is (``boundaries.RodWindow``).
         particle_mass: mass of one particle [kg] (2-D: per unit length [kg/m]).
         particle_volume: rest volume of one particle [m³] (2-D: area [m²]).
         node_mass: the mass a grid node carries inside the fluid at rest, density · dx^d [kg] (2-D: [kg/m]).
         bulk_modulus: κ of the weakly compressible fluid [Pa].
         gravity: acceleration of gravity [m/s²], (d,).
         viscosity_cap: the largest viscosity the explicit step resolves [Pa·s]; above it the fluid is rigid-like.
+        rod_slip_length: Navier slip length b of the rod's (no-slip) surface [m]: the fluid slips along it at
+            b ∂u_t/∂n; 0 is no-slip (see ``boundaries.ghost_matrix``).
     """
 
     grid: Grid
-    offsets: Tensor
+    offset_index: Tensor
+    stencil_points: Tensor
+    eye: Tensor
+    mass_row: Tensor
+    cells: CellStencil
+    particle_bounds: Tensor
     strides: Tensor
     nodes: Tensor
     cup: Cup
     cup_phi: Tensor
-    cup_normal: Tensor
-    cup_nodes: Tensor
+    cup_band: GhostBand
     rod: RodShape
+    rod_window: RodWindow
     rod_slip: bool
     particle_mass: float
     particle_volume: float
@@ -55,6 +74,7 @@ class Scene:
     bulk_modulus: float
     gravity: Tensor
     viscosity_cap: float
+    rod_slip_length: float | Tensor = 0.0
 
     @property
     def dim(self) -> int:
@@ -68,73 +88,92 @@ def p2g(scene: Scene, state: State, dt: float) -> tuple[Tensor, Stencil]:
     particle's current volume and σ = τ_v(J) I its volumetric stress.
     """
     grid, m, d = scene.grid, scene.particle_mass, scene.dim
-    st = quadratic_stencil(grid, state.x, scene.offsets, scene.strides)
+    st = quadratic_stencil(grid, state.x, scene.offset_index, scene.strides)
     kirchhoff = scene.particle_volume * state.J * volumetric_stress(state.J, scene.bulk_modulus)
-    eye = torch.eye(d, dtype=state.x.dtype, device=state.x.device)
-    affine = m * state.C - (dt * 4.0 / grid.dx**2) * kirchhoff[:, None, None] * eye
-    to_node = grid.dx * (scene.offsets.to(state.x.dtype)[None, :, :] - st.frac[:, None, :])  # x_i − x_p [m]
-    momentum = st.weight[..., None] * (m * state.v[:, None, :] + torch.einsum("nab,nkb->nka", affine, to_node))
-    contrib = torch.cat([momentum, (m * st.weight)[..., None]], dim=-1).reshape(-1, d + 1)
-    index = st.index.reshape(-1, 1).expand(-1, d + 1)
-    buffer = torch.zeros(grid.num_nodes, d + 1, dtype=state.x.dtype, device=state.x.device)
-    return buffer.scatter_add(0, index, contrib), st
+    # node k receives w_pk (m v_p + A_p (x_k − x_p)), A = m C − (4 Δt/dx²) V σ, x_k − x_p = (o_k − frac_p) dx:
+    # w_pk T_p [o_k, 1] with T_p = [[dx A_p, b_p], [0, m]], b_p = m v_p − dx A_p frac_p. Component-major layout
+    # (d + 1, N, ·) turns the per-particle products into one matrix product and one row-wise scatter.
+    affine = grid.dx * (m * state.C - (dt * 4.0 / grid.dx**2) * kirchhoff[:, None, None] * scene.eye)
+    b = m * state.v - (affine @ st.frac[:, :, None]).squeeze(-1)
+    n, k = st.weight.shape
+    transfer = torch.cat([torch.cat([affine, b[:, :, None]], dim=2).transpose(0, 1),
+                          scene.mass_row.expand(1, n, d + 1)])  # (d + 1, N, d + 1)
+    contrib = (transfer.view(-1, d + 1) @ scene.stencil_points.T).view(d + 1, n, k) * st.weight
+    index = st.index.view(1, -1).expand(d + 1, -1)
+    buffer = torch.zeros(d + 1, grid.num_nodes, dtype=state.x.dtype, device=state.x.device)
+    return buffer.scatter_add(1, index, contrib.view(d + 1, -1)).T.contiguous(), st
 
 
-def enforce_boundaries(scene: Scene, v: Tensor, fluid: Tensor, rod: Tensor, rod_phi: Tensor, rod_normal: Tensor,
-                       pose: RodPose) -> Tensor:
-    """Node velocities with the cup's and the rod's ghost velocities in place [m/s], (num_nodes, d)."""
-    mask = fluid.to(v.dtype)[:, None]
-    field = torch.cat([v * mask, mask], dim=-1)
-    cup = scene.cup_nodes
-    cup_ghost = ghost_velocity(scene.grid, field, scene.nodes[cup], scene.cup_phi[cup], scene.cup_normal[cup],
-                               torch.zeros_like, slip=scene.cup.wall == "slip")
-    rod_ghost = ghost_velocity(scene.grid, field, scene.nodes[rod], rod_phi[rod], rod_normal[rod],
-                               lambda p: rod_velocity(p, pose), slip=scene.rod_slip)
-    return v.index_copy(0, cup, cup_ghost).index_copy(0, rod, rod_ghost)
+def boundary_operators(scene: Scene, has_mass: Tensor, pose: RodPose) -> tuple[Tensor, Tensor, Tensor,
+                                                                                GhostOperator, GhostOperator]:
+    """The step's solids: the node solid mask (num_nodes,) bool, the rod window's node indices (W,) and which of
+    them lie inside the rod (W,) bool, and the ghost-velocity operators of the cup and of the rod
+    (``boundaries.GhostOperator``; apply the cup's first). ``has_mass``: the nodes that carry mass."""
+    window = scene.rod_window.nodes(scene.grid, pose.axis)
+    window_nodes = scene.nodes[window]
+    rod_phi, rod_normal = rod_sdf(scene.rod, window_nodes, pose)
+    in_rod = rod_phi <= 0
+    cup_solid = scene.cup_phi <= 0
+    solid = cup_solid.index_copy(0, window, cup_solid[window] | in_rod)
+    fluid = (has_mass & ~solid).to(window_nodes.dtype)
+    rod_band = ghost_band(scene.grid, window, window_nodes, rod_phi, rod_normal, scene.rod_slip, scene.rod_slip_length)
+    return (solid, window, in_rod, GhostOperator.of(scene.cup_band, fluid),
+            GhostOperator.of(rod_band, fluid, lambda p: rod_velocity(p, pose), active=in_rod))
 
 
-def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float) -> tuple[Tensor, Tensor, Tensor]:
+def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
+                material_state: Tensor | None = None) -> tuple[Tensor, ...]:
     """Node velocities after gravity, the shear stress and the cup's and rod's boundary conditions [m/s],
     (num_nodes, d), with the fluid's force on the rod [N] (d,) and its torque about the rod's axis [N·m]
-    (2-D: per unit length)."""
+    (2-D: per unit length).
+
+    With a ``material_state`` (``State.material``), the material is called as
+    ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state,
+    which is returned as a fourth value.
+    """
     grid, d = scene.grid, scene.dim
     mass, momentum = buffer[:, d], buffer[:, :d]
     has_mass = mass > MASS_FLOOR
     v = torch.where(has_mass[:, None], momentum / mass.clamp_min(MASS_FLOOR)[:, None] + dt * scene.gravity, 0.0)
-    rod_phi, rod_normal = rod_sdf(scene.rod, scene.nodes, pose)
-    solid = (scene.cup_phi <= 0) | (rod_phi <= 0)
-    fluid = has_mass & ~solid
-    rod = torch.nonzero(rod_phi <= 0).squeeze(1)
+    solid, window, in_rod, cup_ghosts, rod_ghosts = boundary_operators(scene, has_mass, pose)
 
     # shear stress from the ghost-extended velocity field; a cell counts where it holds fluid: its emptiest corner
     # sets its volume, solid corners count as full, and cells wholly inside solids are left out
-    v_ext = enforce_boundaries(scene, v, fluid, rod, rod_phi, rod_normal, pose)
+    v_ext = rod_ghosts(cup_ghosts(v))
     fill = torch.where(solid, 1.0, (2.0 * mass / scene.node_mass).clamp(max=1.0)).to(v.dtype)
-    cell_volume = grid.dx**d * cell_min(fill, grid.shape) * cell_max((~solid).to(v.dtype), grid.shape)
-    stress = material.shear_stress(cell_velocity_gradient(v_ext, grid.shape, grid.dx), scene.viscosity_cap, dt)
-    f_shear = nodal_forces(stress, cell_volume, grid.shape, grid.dx)
+    cell_volume = grid.dx**d * cell_min(fill, scene.cells) * cell_any(~solid, scene.cells)
+    grad_v = cell_velocity_gradient(v_ext, scene.cells)
+    if material_state is None:
+        stress = material.shear_stress(grad_v, scene.viscosity_cap, dt)
+    else:
+        stress, material_state = material.shear_stress(grad_v, scene.viscosity_cap, dt, state=material_state)
+    f_shear = nodal_forces(stress, cell_volume, scene.cells, grid.num_nodes)
     inertia = mass.clamp_min(scene.node_mass)[:, None]  # lighter nodes (walls, surface) get the bulk's inertia
     v_visc = torch.where(has_mass[:, None], v + dt * f_shear / inertia, 0.0)
-    v_new = enforce_boundaries(scene, v_visc, fluid, rod, rod_phi, rod_normal, pose)
+    v_new = rod_ghosts(cup_ghosts(v_visc))
 
     # the fluid's force on the rod is the rod's reaction on its ghost nodes: the shear stress on them less the
     # momentum the boundary condition gives the fluid mass they carry (pressure and gravity are in v)
-    on_rod = f_shear[rod] - mass[rod, None] * (v_new[rod] - v[rod]) / dt
+    reaction = f_shear[window] - mass[window, None] * (v_new[window] - v[window]) / dt
+    on_rod = torch.where(in_rod[:, None], reaction, 0.0)
     force = on_rod.sum(0)
-    arm = scene.nodes[rod, :2] - pose.axis
+    arm = scene.nodes[window, :2] - pose.axis
     torque = (arm[:, 0] * on_rod[:, 1] - arm[:, 1] * on_rod[:, 0]).sum()
+    if material_state is not None:
+        return v_new, force, torque, material_state
     return v_new, force, torque
 
 
 def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float) -> State:
     """Gather velocity and its MLS gradient back to the particles and advect them."""
     n, k, d = st.weight.shape[0], st.weight.shape[1], scene.dim
-    v_nodes = v_grid.index_select(0, st.index.reshape(-1)).view(n, k, d)
-    wv = st.weight[..., None] * v_nodes
-    v = wv.sum(1)
+    v_nodes = v_grid.T.contiguous().index_select(1, st.index.view(-1)).view(d, n, k)  # component-major
+    # Σ_k w_k v_k [o_kᵀ, 1]: the first moment of the node velocities and, in the last column, the velocity
+    moments = ((v_nodes * st.weight).view(d * n, k) @ scene.stencil_points).view(d, n, d + 1)
+    moments = moments.transpose(0, 1).contiguous()  # (N, d, d + 1); a new state has the layout of a seeded one
+    v = moments[:, :, d].contiguous()
     # C = (4/dx²) Σ w v_i (x_i − x_p)ᵀ, with x_i − x_p = (offset − frac) dx
-    C = (4.0 / scene.grid.dx) * (torch.einsum("nka,kb->nab", wv, scene.offsets.to(v.dtype))
-                                 - v[:, :, None] * st.frac[:, None, :])
+    C = (4.0 / scene.grid.dx) * (moments[:, :, :d] - v[:, :, None] * st.frac[:, None, :])
     J = state.J * (1.0 + dt * C.diagonal(dim1=-2, dim2=-1).sum(-1))
     return State(x=state.x + dt * v, v=v, C=C, J=J)
 
@@ -145,9 +184,7 @@ def project_out_of_solids(scene: Scene, x: Tensor, pose: RodPose) -> Tensor:
     x = x - phi.clamp_max(0.0)[:, None] * normal
     phi, normal = rod_sdf(scene.rod, x, pose)
     x = x - phi.clamp_max(0.0)[:, None] * normal
-    lo = scene.grid.origin + 0.5 * scene.grid.dx
-    hi = scene.grid.origin + (torch.tensor(scene.grid.shape, dtype=x.dtype, device=x.device) - 1.5001) * scene.grid.dx
-    return torch.maximum(torch.minimum(x, hi), lo)
+    return torch.clamp(x, scene.particle_bounds[0], scene.particle_bounds[1])
 
 
 def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tuple[State, Tensor, Tensor]:
@@ -157,8 +194,13 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     (in 2-D both per unit length of rod: [N/m], [N]).
     """
     buffer, st = p2g(scene, state, dt)
-    v_grid, force, torque = grid_update(scene, material, buffer, pose, dt)
-    new = g2p(scene, st, v_grid, state, dt)
+    if state.material is None:
+        v_grid, force, torque = grid_update(scene, material, buffer, pose, dt)
+        new = g2p(scene, st, v_grid, state, dt)
+    else:
+        v_grid, force, torque, material_state = grid_update(scene, material, buffer, pose, dt, state.material)
+        new = g2p(scene, st, v_grid, state, dt)
+        new.material = material_state
     tip_rate = pose.velocity[2] if scene.dim == 3 else 0.0
     end_pose = RodPose(axis=pose.axis + 0.5 * dt * pose.velocity[:2], tip=pose.tip + 0.5 * dt * tip_rate,
                        angle=pose.angle + 0.5 * dt * pose.angular_velocity, velocity=pose.velocity,

@@ -13,61 +13,55 @@ profile at typical steps; see docs/validation.md).
 
 from __future__ import annotations
 
-import itertools
+from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-
-def _corners(d: int):
-    for corner in itertools.product((0, 1), repeat=d):
-        yield corner, torch.tensor([1.0 if c else -1.0 for c in corner])
+from .grid import Grid
 
 
-def _cell_view(nodes: Tensor, corner: tuple[int, ...]) -> Tensor:
-    """The node values at one corner of every cell: nodes (n0, n1[, n2], ...) -> (n0-1, n1-1[, n2-1], ...)."""
-    index = tuple(slice(c, c + n - 1) for c, n in zip(corner, nodes.shape[: len(corner)]))
-    return nodes[index]
+@dataclass(frozen=True)
+class CellStencil:
+    """The cells of a grid as finite elements, precomputed once per scene.
+
+    Attributes:
+        corners: flat node index of each cell's 2^d corners, (cells, 2^d) int64.
+        grad: shape-function gradients at the cell centre ∇N_i(x_c) = s_i / (2^(d−1) dx) [1/m], (2^d, d).
+    """
+
+    corners: Tensor
+    grad: Tensor
+
+    @classmethod
+    def of(cls, grid: Grid) -> "CellStencil":
+        sign = 2.0 * grid.stencil_offsets(2).to(grid.origin.dtype) - 1.0
+        return cls(corners=grid.cell_corners(), grad=sign / (2 ** (grid.dim - 1) * grid.dx))
 
 
-def cell_velocity_gradient(v: Tensor, shape: tuple[int, ...], dx: float) -> Tensor:
-    """∂v_a/∂x_b at cell centres [1/s], (cells, d, d) in flat order, from node velocities v (num_nodes, d)."""
-    d = len(shape)
-    nodes = v.view(*shape, d)
-    grad = 0.0
-    for corner, sign in _corners(d):
-        grad = grad + _cell_view(nodes, corner)[..., :, None] * sign.to(v)
-    return (grad / (2 ** (d - 1) * dx)).reshape(-1, d, d)
+def cell_velocity_gradient(v: Tensor, cells: CellStencil) -> Tensor:
+    """∂v_a/∂x_b = Σ_i v_ia ∇N_i,b(x_c) at cell centres [1/s], (cells, d, d), from node velocities v (num_nodes, d)."""
+    k, d = cells.grad.shape
+    corner_v = v.T.contiguous().index_select(1, cells.corners.view(-1)).view(-1, k)  # rows (a, cell)
+    return (corner_v @ cells.grad).view(d, -1, d).transpose(0, 1)
 
 
-def nodal_forces(stress: Tensor, cell_volume: Tensor, shape: tuple[int, ...], dx: float) -> Tensor:
+def nodal_forces(stress: Tensor, cell_volume: Tensor, cells: CellStencil, num_nodes: int) -> Tensor:
     """Node forces f_i = −Σ_c V_c σ_c ∇N_i(x_c) [N] (2-D: per unit length), (num_nodes, d), from cell stress
     σ_c [Pa] (cells, d, d) and cell volumes V_c [m³] (cells,)."""
-    d = len(shape)
-    cells = tuple(n - 1 for n in shape)
-    weighted = (cell_volume[:, None, None] * stress).view(*cells, d, d) / (2 ** (d - 1) * dx)
-    force = 0.0
-    for corner, sign in _corners(d):
-        per_cell = -(weighted @ sign.to(stress))  # (cells..., d)
-        # place the cell's contribution on its corner node: pad one cell of zeros on the far side
-        pad = []
-        for c in reversed(corner):
-            pad += [c, 1 - c]
-        force = force + F.pad(per_cell.movedim(-1, 0), pad).movedim(0, -1)
-    return force.reshape(-1, d)
+    d = stress.shape[-1]
+    weighted = (cell_volume[:, None, None] * stress).transpose(0, 1).reshape(-1, d)  # rows (a, cell)
+    per_corner = (weighted @ cells.grad.T).view(d, -1)  # (d, cells · 2^d): V_c (σ_c ∇N_i)_a
+    index = cells.corners.view(1, -1).expand(d, -1)
+    return torch.zeros(d, num_nodes, dtype=stress.dtype, device=stress.device).scatter_add(
+        1, index, -per_corner).T.contiguous()
 
 
-def cell_min(node_values: Tensor, shape: tuple[int, ...]) -> Tensor:
+def cell_min(node_values: Tensor, cells: CellStencil) -> Tensor:
     """The smallest of each cell's corner values, (cells,)."""
-    nodes = node_values.view(*shape)
-    result = None
-    for corner, _ in _corners(len(shape)):
-        view = _cell_view(nodes, corner)
-        result = view if result is None else torch.minimum(result, view)
-    return result.reshape(-1)
+    return node_values[cells.corners].amin(dim=1)
 
 
-def cell_max(node_values: Tensor, shape: tuple[int, ...]) -> Tensor:
-    """The largest of each cell's corner values, (cells,)."""
-    return -cell_min(-node_values, shape)
+def cell_any(node_mask: Tensor, cells: CellStencil) -> Tensor:
+    """Whether any of each cell's corners is set, (cells,) bool."""
+    return node_mask[cells.corners].any(dim=1)

@@ -1,0 +1,325 @@
+"""Identify a fluid from a recording: density, every model fitted, uncertainty, the selected law.
+
+    result = identify(load_recording("examples/carreau_example"), config=SimConfig(dim=2), checkpoint="out/checkpoint.json")
+    result.summary()["selected"]
+
+The Newtonian fit comes first: its viscosity and Jacobian give the stir's effective shear rate (``initial``), from
+which every other law starts. An interrupted run resumes from ``checkpoint``: finished models are not refitted and
+the model being fitted restarts from its last iterate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..density import estimate_density
+from ..mpm import SimConfig
+from ..recording import Recording, RecordingError
+from .initial import effective_shear_rate, initial_model, newtonian_start
+from .models import FitModel
+from .optimise import FitResult, fit_model, noise_scale
+from .problem import StirProblem, Windows
+from .selection import bic, select
+from .uncertainty import Uncertainty, laplace, log_viscosity_interval
+
+DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
+
+
+@dataclass
+class Identification:
+    """Everything :func:`identify` found; ``summary()`` is the JSON report."""
+
+    recording: Recording
+    problem: StirProblem
+    density: dict
+    fits: dict[str, FitResult]
+    uncertainty: dict[str, Uncertainty]
+    effective_shear_rate: float
+    selection: dict
+    resolvable: dict
+    seconds: float
+
+    @property
+    def selected(self) -> FitResult:
+        return self.fits[self.selection["selected"]]
+
+    def apparent_viscosity(self, name: str) -> dict:
+        """η at zero shear and at the effective shear rate [Pa·s] with 95 % intervals, for model ``name``."""
+        fit, unc = self.fits[name], self.uncertainty[name]
+        eta, lo, hi = log_viscosity_interval(fit.model, fit.theta, unc.covariance, self.effective_shear_rate)
+        return {"zero_shear": fit.model.zero_shear_viscosity(), "effective_shear_rate": self.effective_shear_rate,
+                "at_effective_shear_rate": float(eta[0]), "at_effective_shear_rate_ci95": [float(lo[0]), float(hi[0])],
+                "refined": None}
+
+    def summary(self) -> dict:
+        """The report as JSON-serialisable data (SI units; see docs/identification.md)."""
+        laws = {}
+        for name, fit in self.fits.items():
+            unc = self.uncertainty[name]
+            laws[name] = {
+                "params": fit.model.params_si(), "units": fit.model.units,
+                "ci95": {k: [_json(lo), _json(hi)] for k, (lo, hi) in unc.ci95.items()},
+                "identifiable": unc.identifiable, "at_bound": unc.at_bound,
+                "loss": fit.loss, "holdout_loss": fit.holdout_loss,
+                "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
+                "effective_samples": unc.effective_samples,
+                "apparent_viscosity": self.apparent_viscosity(name),
+                "evaluations": fit.evaluations, "seconds": fit.seconds, "optimizer_message": fit.message,
+            }
+        laws_only = {k: v for k, v in laws.items() if k != "corotated"}
+        return {
+            "recording": str(self.recording.path) if self.recording.path else self.recording.name,
+            "density": self.density,
+            "selected": self.selection["selected"],
+            "selection": {k: v for k, v in self.selection.items() if k != "bic"},
+            "laws": laws_only,
+            "baseline": laws.get("corotated"),
+            "apparent_viscosity": self.apparent_viscosity(self.selection["selected"]),
+            "resolvable": self.resolvable,
+            "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
+                        "end": self.problem.windows.end, "unit": "s"},
+            "shear_rate_range": list(self.probed_shear_rates()),
+            "simulation": {"dim": self.problem.config.dim, "dx": self.problem.config.dx,
+                           "sound_speed": self.problem.config.sound_speed},
+            "seconds": self.seconds,
+        }
+
+    def probed_shear_rates(self) -> tuple[float, float]:
+        """The band of effective shear rates the stir covered [1/s]: γ̇_eff scaled by the rod's slowest and fastest
+        speeds in the fitted window relative to its mean (speeds below 5 % of the top speed are left out)."""
+        speed = np.linalg.norm(self.problem.velocity[self.problem.train], axis=1)
+        moving = speed[speed > 0.05 * speed.max()] if speed.max() > 0 else np.ones(1)
+        ratio = self.effective_shear_rate / max(float(np.mean(speed)), 1e-12)
+        return float(moving.min() * ratio), float(moving.max() * ratio)
+
+
+def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, density: float | None = None,
+             baseline: bool = True, window: float | None = 2.0, holdout_fraction: float = 0.25,
+             max_iterations: int = 6, optimizer: str = "lm", selection: str = "bic",
+             checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
+             coarse: SimConfig | None = None, fine_iterations: int = 3) -> Identification:
+    """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
+
+    Args:
+        recording: a loaded recording.
+        models: law names (``diffstir.rheology.LAWS``); the Newtonian law is always fitted first.
+        config: the simulator's resolution and numerics for fitting.
+        density: the fluid's density [kg/m³]; required when the recording has no density block, otherwise the
+            Archimedes estimate is used and this is ignored.
+        window: fit the first ``window`` seconds of the recording (None: all of it).
+        holdout_fraction: the last fraction of the window that is held out of the fit.
+        max_iterations, optimizer: see :func:`~diffstir.identify.optimise.fit_model`.
+        selection: ``"bic"``, ``"holdout"`` or ``"loss"`` (see ``selection``).
+        checkpoint: a JSON file to resume from and save to after every iteration.
+        progress: show a progress bar.
+        log_dir: TensorBoard log directory (None: no logs).
+        coarse: a coarser, faster simulation to fit on first (coarse-to-fine): every model is fitted there from
+            scratch, then refined on ``config`` for ``fine_iterations`` Broyden steps that start from the coarse
+            fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
+    """
+    started = time.perf_counter()
+    density_report = _density(recording, density)
+    windows = Windows.of(recording, window, holdout_fraction)
+    problem = StirProblem(recording, config, density_report["value"], windows)
+    names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
+    settings = {"models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
+                "max_iterations": max_iterations, "dim": config.dim, "dx": config.dx,
+                "sound_speed": config.sound_speed, "density": density_report["value"],
+                "coarse": None if coarse is None else {"dx": coarse.dx, "sound_speed": coarse.sound_speed,
+                                                        "dim": coarse.dim, "fine_iterations": fine_iterations}}
+    state = _load_checkpoint(checkpoint, settings)
+    tracker = _Tracker(names, max_iterations + (0 if coarse is None else fine_iterations), progress, log_dir)
+
+    def save() -> None:
+        if checkpoint is not None:
+            Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(checkpoint).with_suffix(".tmp")
+            tmp.write_text(json.dumps(state))
+            tmp.replace(checkpoint)
+
+    def run_stage(stage: str, stage_problem: StirProblem, iterations: int,
+                  start: dict[str, FitResult] | None) -> dict[str, FitResult]:
+        """Fit every model on ``stage_problem``; from scratch, or from the coarser stage's fits ``start``."""
+        done, running = state["done"].setdefault(stage, {}), state["running"].setdefault(stage, {})
+        dt = stage_dt(stage, stage_problem, start)
+        fits: dict[str, FitResult] = {}
+        for name in names:
+            if name in done:
+                fits[name] = _restore(name, done[name], stage_problem, dt=dt)
+                tracker.skip(name)
+                continue
+            jacobian = None
+            if start is not None:
+                model, jacobian = start[name].model.copy(), start[name].jacobian
+                if name == "corotated":  # keep its apparent viscosity mu * dt across the change of step
+                    model = FitModel.named("corotated", dt=dt,
+                                           shear_modulus=start[name].model.params_si()["shear_modulus"]
+                                           * start[name].model.dt / dt)
+            elif name == "newtonian":
+                model = FitModel.named("newtonian", eta=newtonian_start(stage_problem))
+            else:
+                model = initial_model(name, fits["newtonian"].model.params_si()["eta"],
+                                      state["effective_shear_rate"], dt=dt)
+            if name in running:
+                model.set_theta(np.array(running[name]))
+            fit_problem = stage_problem if name != "corotated" else _fixed_step(stage_problem, dt)
+
+            def on_iteration(m, iteration, loss, theta, name=name):
+                running[name] = [float(t) for t in theta]
+                tracker.iteration(f"{stage}/{name}", iteration, loss, m.params_si())
+                save()
+
+            fits[name] = fit_model(fit_problem, model, max_iterations=iterations, optimizer=optimizer,
+                                   initial_jacobian=jacobian, on_evaluation=tracker.evaluation,
+                                   on_iteration=on_iteration)
+            done[name] = _serialise(fits[name])
+            running.pop(name, None)
+            if name == "newtonian" and "effective_shear_rate" not in state:
+                state["effective_shear_rate"] = effective_shear_rate(stage_problem, fits["newtonian"])
+            save()
+        return fits
+
+    def stage_dt(stage: str, stage_problem: StirProblem, start: dict[str, FitResult] | None) -> float:
+        """The stage's time step for the corotated baseline [s]: that of a Newtonian fluid at the first estimate."""
+        if stage not in state["dt"]:
+            eta = start["newtonian"].model.params_si()["eta"] if start else 1.0
+            state["dt"][stage] = stage_problem.simulator(FitModel.named("newtonian", eta=eta).material).time_step(
+                stage_problem.trajectory)
+        return state["dt"][stage]
+
+    state.setdefault("dt", {})
+    if coarse is None:
+        fits = run_stage("fit", problem, max_iterations, None)
+    else:
+        coarse_problem = StirProblem(recording, coarse, density_report["value"], windows)
+        fits = run_stage("fine", problem, fine_iterations, run_stage("coarse", coarse_problem, max_iterations, None))
+    tracker.close()
+
+    train = problem.train
+    residuals = {name: (fit.predicted - problem.measured)[train] for name, fit in fits.items()}
+    uncertainty = {name: laplace(fit.model, fit.theta, fit.jacobian[train], residuals[name])
+                   for name, fit in fits.items()}
+    # one sample count for every model, or BIC would compare likelihoods of different data: that of the
+    # best-fitting model, whose residuals are the closest to the noise
+    best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
+    n_effective = uncertainty[best].effective_samples
+    bics = {name: bic(r, fits[name].model.size, n_effective) for name, r in residuals.items()}
+    laws = [n for n in fits if n != "corotated"]
+    chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
+                    {n: fits[n].holdout_loss for n in laws}, selection)
+    chosen["bic"] = bics
+    return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
+                          uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
+                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]),
+                          seconds=time.perf_counter() - started)
+
+
+def _density(recording: Recording, density: float | None) -> dict:
+    if recording.density is not None:
+        est = estimate_density(recording.density, rod_radius=recording.rod.radius,
+                               **({"force_resolution": recording.sensor.resolution}
+                                  if recording.sensor.resolution else {}))
+        return {"value": est.value, "ci95": list(est.ci95), "unit": "kg/m^3", "source": "archimedes"}
+    if density is None:
+        raise RecordingError(f"{recording.source('yaml')}: no density block, and no density (kg/m^3) was given; "
+                             "set density=... in the config")
+    if not 100.0 <= density <= 25000.0:
+        raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
+    return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}
+
+
+def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
+    """Whether the sensor resolves the viscosity: the rms change of the reading for a factor 2 in η, against the
+    reading's noise level (and the sensor's resolution)."""
+    change = float(np.sqrt(np.mean((newtonian.jacobian[problem.train, 0] * math.log(2.0)) ** 2)))
+    noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
+    floor = max(noise, problem.recording.sensor.resolution or 0.0)
+    return {"viscosity": bool(change > floor), "reading_change_per_doubling": change, "noise": float(noise), "unit": "N"}
+
+
+def _fixed_step(problem: StirProblem, dt: float) -> StirProblem:
+    """The same problem with the time step held at ``dt`` [s] (the corotated baseline's viscosity is μ Δt)."""
+    fixed = StirProblem.__new__(StirProblem)
+    fixed.__dict__.update(problem.__dict__)
+    fixed.config = replace(problem.config, dt=dt)
+    return fixed
+
+
+def _serialise(fit: FitResult) -> dict:
+    return {"theta": fit.theta.tolist(), "predicted": fit.predicted.tolist(), "jacobian": fit.jacobian.tolist(),
+            "history": fit.history, "evaluations": fit.evaluations, "seconds": fit.seconds, "message": fit.message,
+            "params": fit.model.params_si()}
+
+
+def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
+    model = FitModel.named(name, dt=dt, **saved["params"])
+    predicted = np.array(saved["predicted"])
+    train = problem.train
+    loss = float(np.mean(np.abs(problem.measured[train] - predicted[train])))
+    holdout = float(np.mean(np.abs(problem.measured[~train] - predicted[~train]))) if (~train).any() else None
+    return FitResult(model=model, theta=np.array(saved["theta"]), predicted=predicted,
+                     jacobian=np.array(saved["jacobian"]), loss=loss, holdout_loss=holdout, history=saved["history"],
+                     evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"])
+
+
+def _load_checkpoint(path: str | Path | None, settings: dict) -> dict:
+    fresh = {"settings": settings, "done": {}, "running": {}}
+    if path is None or not Path(path).exists():
+        return fresh
+    try:
+        state = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: the checkpoint is not valid JSON ({exc}); delete it to start afresh") from None
+    changed = sorted(k for k in settings if state.get("settings", {}).get(k) != settings[k])
+    if changed:
+        raise ValueError(f"{path}: the checkpoint was written with other settings ({', '.join(changed)}); "
+                         "use another out directory or delete the checkpoint to start afresh")
+    return state
+
+
+def _json(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+class _Tracker:
+    """Progress bar over the forward simulations a fit may spend, and TensorBoard scalars per iteration."""
+
+    def __init__(self, names: list[str], max_iterations: int, progress: bool, log_dir: str | Path | None):
+        sizes = {"newtonian": 1, "corotated": 1}
+        budget = 3 + sum((max_iterations + 2) * (sizes.get(n, 4) + 1) for n in names)
+        self.bar = None
+        if progress:
+            from tqdm.auto import tqdm
+            self.bar = tqdm(total=budget, unit="sim", desc="identify")
+        self.writer = None
+        if log_dir is not None:
+            from torch.utils.tensorboard import SummaryWriter
+            self.writer = SummaryWriter(str(log_dir))
+
+    def evaluation(self, name: str, count: int, loss: float) -> None:
+        if self.bar is not None:
+            self.bar.set_description(f"identify {name}")
+            self.bar.set_postfix(loss=f"{loss:.3g} N")
+            self.bar.update(1)
+
+    def iteration(self, name: str, iteration: int, loss: float, params: dict[str, float]) -> None:
+        if self.writer is not None:
+            self.writer.add_scalar(f"loss/{name}", loss, iteration)
+            for key, value in params.items():
+                self.writer.add_scalar(f"{name}/{key}", value, iteration)
+
+    def skip(self, name: str) -> None:
+        if self.bar is not None:
+            self.bar.set_description(f"identify {name} (from checkpoint)")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        if self.writer is not None:
+            self.writer.close()

@@ -1,0 +1,116 @@
+"""A recording replayed in the simulator: which samples are fitted, which are held out, and what the sensor would
+have read for a given fluid.
+
+The simulation always starts from the settled fluid at the recording's first sample (the rod at rest there) and
+runs to the end of the held-out window; later samples are not simulated. A 2-D slice gives a force per unit length
+[N/m]; it stands for the rod's immersed length, F = F' · rod.immersion_depth [N] (end effects at the tip and the
+free surface are left out; they are part of the gap that the rectifier corrects).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ..mpm import SimConfig, StirringSimulator
+from ..recording import Recording, RecordingError
+from ..recording.resample import resample_force
+from ..recording.sensor import sensor_reading
+from ..rig import Cup, Rig, Rod
+from ..trajectory import Trajectory
+
+#: Headroom above the fluid for the simulated cup [m]: the paper's cup is 16.5 cm tall and filled to 13 cm.
+CUP_HEADROOM = 0.035
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Time windows [s] of a fit, on the recording's clock: samples in (start, split] are fitted, samples in
+    (split, end] are held out to judge over-fitting."""
+
+    start: float
+    split: float
+    end: float
+
+    @classmethod
+    def of(cls, rec: Recording, fit_seconds: float | None, holdout_fraction: float) -> "Windows":
+        """The first ``fit_seconds`` [s] of the recording (all of it when None), of which the last
+        ``holdout_fraction`` is held out."""
+        if not 0.0 <= holdout_fraction < 1.0:
+            raise ValueError(f"fit.holdout_fraction = {holdout_fraction}; expected a fraction in [0, 1)")
+        if fit_seconds is not None and not fit_seconds > 0:
+            raise ValueError(f"fit.window = {fit_seconds}; expected a positive duration in s (or null for all)")
+        start = float(rec.t[0])
+        end = float(rec.t[-1]) if fit_seconds is None else min(float(rec.t[-1]), start + float(fit_seconds))
+        return cls(start=start, split=end - holdout_fraction * (end - start), end=end)
+
+
+def rig_from_recording(rec: Recording) -> Rig:
+    """The simulated rig of a recording's geometry (cylindrical rod, no-slip walls)."""
+    fill = rec.cup.resolved_fill_height()
+    return Rig(cup=Cup(radius=rec.cup.radius, fill_height=fill, height=fill + CUP_HEADROOM),
+               rod=Rod(radius=rec.rod.radius, immersion_depth=rec.rod.immersion_depth))
+
+
+def trajectory_from_recording(rec: Recording, end: float | None = None) -> Trajectory:
+    """The rod's recorded path up to ``end`` [s] (one sample past it, so that interpolation covers it)."""
+    last = rec.t.size if end is None else min(rec.t.size, int(np.searchsorted(rec.t, end, side="right")) + 1)
+    z = np.zeros(last) if rec.z is None else rec.z[:last]
+    return Trajectory(t=rec.t[:last], xy=np.stack([rec.x[:last], rec.y[:last]], axis=-1), z=z, angle=0.0)
+
+
+class StirProblem:
+    """Simulated sensor readings of a recording for any fluid, and the measured readings they are compared with.
+
+    Args:
+        recording: the recording.
+        config: the simulator's resolution and numerics.
+        density: the fluid's density [kg/m³].
+        windows: the fitted and held-out samples (default: the whole recording, nothing held out).
+        max_samples: at most this many measured samples are compared (evenly thinned; the force is resampled
+            from the simulation, so thinning loses nothing the simulation resolves).
+    """
+
+    def __init__(self, recording: Recording, config: SimConfig, density: float, windows: Windows | None = None,
+                 *, max_samples: int = 2000):
+        self.recording = recording
+        self.config = config
+        self.density = float(density)
+        self.windows = windows or Windows.of(recording, None, 0.0)
+        self.rig = rig_from_recording(recording)
+        self.trajectory = trajectory_from_recording(recording, self.windows.end)
+        self.slice_length = self.rig.rod.immersion_depth if config.dim == 2 else 1.0  # m, or 1 in 3-D
+        t = recording.t
+        inside = np.flatnonzero((t > self.windows.start) & (t <= self.windows.end))
+        if inside.size < 8:
+            raise RecordingError(f"{recording.source('csv')}: only {inside.size} samples in the fit window "
+                                 f"({self.windows.start:g}, {self.windows.end:g}] s; a fit needs at least 8")
+        stride = max(1, int(np.ceil(inside.size / max_samples)))
+        self.index = inside[::stride]
+        self.times = t[self.index]
+        self.measured = recording.force[self.index]
+        self.velocity = recording.velocity()[self.index]  # m/s, (M, 2)
+        self.train = self.times <= self.windows.split
+        if self.train.sum() < 8:
+            raise RecordingError(f"{recording.source('csv')}: only {int(self.train.sum())} samples before the "
+                                 f"held-out split at {self.windows.split:g} s; shorten fit.holdout_fraction")
+
+    def simulator(self, material: nn.Module) -> StirringSimulator:
+        """The simulator of this recording's rig for a material (a rheology law or a material module)."""
+        return StirringSimulator(material, self.rig, self.config, density=self.density)
+
+    def simulate(self, material: nn.Module) -> Tensor:
+        """Simulated readings [N] at ``self.times`` for ``material``; differentiable when grad is enabled.
+
+        The simulated force is interpolated linearly to the recording's times (samples in the first half step,
+        before the first mid-step force, take that first force) and read through the recording's sensor mode.
+        """
+        result = self.simulator(material)(self.trajectory)
+        sim_times = result.times.detach().cpu().numpy()
+        at = np.clip(self.times, sim_times[0], sim_times[-1])
+        force = resample_force(sim_times, result.force[:, :2] * self.slice_length, at)
+        velocity = torch.as_tensor(self.velocity, dtype=force.dtype, device=force.device)
+        return sensor_reading(force, velocity, self.recording.sensor)

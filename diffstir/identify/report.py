@@ -1,0 +1,119 @@
+"""The identification report: ``report.json`` (machine-readable, SI units), ``report.md`` and plots."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .pipeline import Identification
+from .uncertainty import log_viscosity_interval
+
+
+def write_report(result: Identification, out: str | Path) -> dict[str, Path]:
+    """Write report.json, report.md, forces.png, flow_curves.png and losses.png into ``out``; return the paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = result.summary()
+    paths = {"json": out / "report.json", "md": out / "report.md"}
+    paths["json"].write_text(json.dumps(summary, indent=2) + "\n")
+    paths["md"].write_text(markdown(summary))
+    paths.update(plot_all(result, out))
+    return paths
+
+
+def markdown(summary: dict) -> str:
+    """A short human-readable report of ``summary`` (see :meth:`Identification.summary`)."""
+    sel = summary["selected"]
+    av = summary["apparent_viscosity"]
+    d = summary["density"]
+    ci = f" (95 % CI {d['ci95'][0]:.1f}-{d['ci95'][1]:.1f})" if d["ci95"] else ""
+    lines = [f"# Identification of {summary['recording']}", "",
+             f"- density: {d['value']:.1f} kg/m³{ci}, from {d['source']}",
+             f"- selected law: **{sel}** by {summary['selection']['criterion']}; lowest paper loss: "
+             f"{summary['selection']['lowest_loss']}",
+             f"- effective shear rate of the stir: {av['effective_shear_rate']:.3g} 1/s; probed band "
+             f"{summary['shear_rate_range'][0]:.3g}-{summary['shear_rate_range'][1]:.3g} 1/s",
+             f"- apparent viscosity at the effective shear rate: {av['at_effective_shear_rate']:.4g} Pa·s "
+             f"(95 % CI {av['at_effective_shear_rate_ci95'][0]:.4g}-{av['at_effective_shear_rate_ci95'][1]:.4g}); "
+             f"at zero shear: {av['zero_shear']:.4g} Pa·s"]
+    if not summary["resolvable"]["viscosity"]:
+        lines.append("- **not identifiable**: doubling the viscosity changes the reading by "
+                     f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "
+                     f"({summary['resolvable']['noise']:.3g} N); the numbers above are not measurements")
+    lines += ["", "| law | loss [N] | held-out loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|---|"]
+    rows = dict(summary["laws"])
+    if summary.get("baseline"):
+        rows["corotated (baseline)"] = summary["baseline"]
+    for name, law in rows.items():
+        params = "; ".join(
+            f"{k} = {v:.4g} [{_fmt(law['ci95'][k][0])}, {_fmt(law['ci95'][k][1])}] {law['units'][k]}"
+            + ("" if law["identifiable"][k] else " (not identifiable)") for k, v in law["params"].items())
+        holdout = "-" if law["holdout_loss"] is None else f"{law['holdout_loss']:.4g}"
+        lines.append(f"| {name} | {law['loss']:.4g} | {holdout} | {law['bic']:.1f} | {params} |")
+    lines += ["", "Rankings: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in
+                                             summary["selection"]["rankings"].items()),
+              f"Fitted {summary['windows']['start']:.3g}-{summary['windows']['split']:.3g} s, held out "
+              f"{summary['windows']['split']:.3g}-{summary['windows']['end']:.3g} s; simulation "
+              f"{summary['simulation']['dim']}-D, dx = {summary['simulation']['dx']} m; {summary['seconds']:.0f} s.",
+              ""]
+    return "\n".join(lines)
+
+
+def _fmt(value) -> str:
+    return "inf" if value is None else f"{value:.3g}"
+
+
+def plot_all(result: Identification, out: Path) -> dict[str, Path]:
+    """Measured versus simulated readings per law, flow curves with 95 % bands, and loss curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    problem = result.problem
+    paths = {}
+    fig, axes = plt.subplots(len(result.fits), 1, figsize=(8, 1.8 * len(result.fits) + 0.6), sharex=True,
+                             constrained_layout=True, squeeze=False)
+    for ax, (name, fit) in zip(axes[:, 0], result.fits.items()):
+        ax.plot(problem.times, problem.measured, color="0.6", lw=0.7, label="measured")
+        ax.plot(problem.times, fit.predicted, lw=1.0, label=f"{name} (loss {fit.loss:.3g} N)")
+        ax.axvline(problem.windows.split, color="k", ls=":", lw=0.8)
+        ax.set_ylabel("reading [N]")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("time [s] (dotted: start of the held-out part)")
+    paths["forces"] = out / "forces.png"
+    fig.savefig(paths["forces"], dpi=120)
+    plt.close(fig)
+
+    lo, hi = result.probed_shear_rates()
+    rates = np.logspace(np.log10(lo) - 2, np.log10(hi) + 2, 120)
+    fig, ax = plt.subplots(figsize=(6, 4.2), constrained_layout=True)
+    ax.axvspan(lo, hi, color="0.9", label="probed by the stir")
+    for name, fit in result.fits.items():
+        eta, band_lo, band_hi = log_viscosity_interval(fit.model, fit.theta, result.uncertainty[name].covariance,
+                                                       rates)
+        line, = ax.loglog(rates, eta, label=name)
+        finite = np.isfinite(band_hi)
+        ax.fill_between(rates[finite], band_lo[finite], band_hi[finite], color=line.get_color(), alpha=0.15)
+    ax.axvline(result.effective_shear_rate, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("shear rate [1/s] (dotted: effective)")
+    ax.set_ylabel("apparent viscosity [Pa·s]")
+    ax.legend(fontsize=7)
+    paths["flow_curves"] = out / "flow_curves.png"
+    fig.savefig(paths["flow_curves"], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 3.5), constrained_layout=True)
+    for name, fit in result.fits.items():
+        if fit.history:
+            ax.semilogy([h["evaluation"] for h in fit.history], [h["loss"] for h in fit.history], "o-", ms=3,
+                        label=name)
+    ax.set_xlabel("forward simulations")
+    ax.set_ylabel("paper loss mean |ΔF| [N]")
+    ax.legend(fontsize=7)
+    paths["losses"] = out / "losses.png"
+    fig.savefig(paths["losses"], dpi=120)
+    plt.close(fig)
+    return paths

@@ -1,0 +1,41 @@
+"""Choosing the law: the paper's lowest loss, and two guards against over-fitting.
+
+* ``loss``: the lowest paper loss (mean |ΔF| [N]) on the fitted samples, as the paper does; a law with more
+  parameters never loses on this, so it alone over-fits.
+* ``bic``: the Bayesian information criterion of a Gaussian residual model with N_eff effective samples,
+  BIC = N_eff ln(RSS/N) + k ln N_eff, which charges each parameter ln N_eff.
+* ``holdout``: the lowest paper loss on the held-out samples, which the fit never saw.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+CRITERIA = ("bic", "holdout", "loss")
+
+
+def bic(residuals: np.ndarray, n_params: int, n_effective: float) -> float:
+    """N_eff ln(RSS / N) + k ln N_eff for fitted-sample ``residuals`` [N]."""
+    rss = float(residuals @ residuals)
+    return n_effective * math.log(max(rss / len(residuals), 1e-300)) + n_params * math.log(n_effective)
+
+
+def rank(scores: dict[str, float]) -> list[str]:
+    """Names ordered from best (lowest score) to worst; NaN scores last."""
+    return sorted(scores, key=lambda k: (math.isnan(scores[k]), scores[k]))
+
+
+def select(losses: dict[str, float], bics: dict[str, float], holdout: dict[str, float | None],
+           criterion: str = "bic") -> dict:
+    """The selected law by ``criterion`` and the ranking under every criterion."""
+    if criterion not in CRITERIA:
+        raise ValueError(f"fit.selection = {criterion!r}; expected one of {CRITERIA}")
+    rankings = {"loss": rank(losses), "bic": rank(bics)}
+    if all(v is not None for v in holdout.values()):
+        rankings["holdout"] = rank({k: float(v) for k, v in holdout.items()})
+    elif criterion == "holdout":
+        raise ValueError("fit.selection = 'holdout' needs held-out samples; set fit.holdout_fraction > 0")
+    return {"criterion": criterion, "selected": rankings[criterion][0], "lowest_loss": rankings["loss"][0],
+            "rankings": rankings}

@@ -1,0 +1,39 @@
+"""The virtual lab: realistic stirring recordings with a known truth, kept apart from the recording.
+
+``synthesise`` simulates a fluid (``Fluid``: any rheology law or a tabulated flow curve, and a density) stirred
+along a programme (``stirring_programme``) in the rig, with optional hidden physics (``HiddenPhysics``:
+thixotropy, viscoelasticity, temperature drift; a slipping rod), reads the force through a sensor model
+(``SensorModel``) and synthesises the Archimedes density readings; ``write_lab_recording`` saves the recording in
+the project's format and the truth to ``<recording>.truth.json`` beside it. See docs/virtual-lab.md.
+"""
+
+from diffstir.lab.fluid import Fluid, make_fluid_law
+from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
+from diffstir.lab.programme import Segment, programme_speed, stirring_programme
+from diffstir.lab.sensor import SensorModel, dead_band, first_order_lag, one_sided, quantise
+from diffstir.lab.synth import (
+    HiddenPhysicsSpec, LabRecording, density_block, synthesise, truth_path, write_lab_recording,
+)
+
+__all__ = [
+    "Fluid",
+    "HiddenPhysics",
+    "HiddenPhysicsSpec",
+    "LabRecording",
+    "Segment",
+    "SensorModel",
+    "TemperatureDrift",
+    "Thixotropy",
+    "Viscoelasticity",
+    "dead_band",
+    "density_block",
+    "first_order_lag",
+    "make_fluid_law",
+    "one_sided",
+    "programme_speed",
+    "quantise",
+    "stirring_programme",
+    "synthesise",
+    "truth_path",
+    "write_lab_recording",
+]

@@ -1,0 +1,189 @@
+"""Synthesise a recording: simulate the truth, read it through a sensor model, measure the density, and keep the
+truth in a separate file.
+
+The truth simulation is the fitting simulator (``StirringSimulator``) with the fluid's law, optionally wrapped in
+``HiddenPhysics`` and with a slipping rod, at the resolution of its own ``SimConfig`` (the lab's default is finer
+than the fitting default). A 2-D slice gives a force per unit length of rod [N/m]; the lab multiplies it by the
+rod's immersion depth [m] to get the force on the rod [N] (an extruded slice: no tip or free-surface effects).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from diffstir.density import DEPTH_RESOLUTION
+from diffstir.lab.fluid import Fluid
+from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
+from diffstir.lab.sensor import SensorModel, quantise
+from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.recording import (
+    CupGeometry, DensityMeasurement, Recording, RodGeometry, load_recording, save_recording, validate_recording,
+)
+from diffstir.rig import Rig
+from diffstir.trajectory import Trajectory
+
+TRUTH_FORMAT = "diffstir-lab-truth/1"
+ROD_DENSITY = 700.0  # kg/m³: a hardwood rod (the paper's rod is wooden)
+DEPTH_PLACEMENT = 0.5e-3  # m: the robot holds the rod at the nominal depth ± this (uniform) for the density reading
+
+
+@dataclass(frozen=True)
+class HiddenPhysicsSpec:
+    """Which hidden physics the truth simulation has: each model or None, and the rod's Navier slip length [m]."""
+
+    thixotropy: Thixotropy | None = None
+    viscoelasticity: Viscoelasticity | None = None
+    temperature: TemperatureDrift | None = None
+    slip_length: float = 0.0
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping | None) -> "HiddenPhysicsSpec":
+        """From ``{thixotropy: {...} | null, viscoelasticity: ..., temperature: ..., wall_slip: {slip_length}}``."""
+        cfg = dict(cfg or {})
+        unknown = sorted(set(cfg) - {"thixotropy", "viscoelasticity", "temperature", "wall_slip"})
+        if unknown:
+            raise ValueError(f"physics: unknown field(s) {unknown}; expected thixotropy, viscoelasticity, "
+                             f"temperature, wall_slip")
+
+        def build(kind, key):
+            return kind(**dict(cfg[key])) if cfg.get(key) else None
+
+        slip = dict(cfg.get("wall_slip") or {})
+        return cls(build(Thixotropy, "thixotropy"), build(Viscoelasticity, "viscoelasticity"),
+                   build(TemperatureDrift, "temperature"), float(slip.get("slip_length", 0.0)))
+
+    @property
+    def in_material(self) -> bool:
+        return any(m is not None for m in (self.thixotropy, self.viscoelasticity, self.temperature))
+
+    def as_dict(self) -> dict:
+        return {"thixotropy": None if self.thixotropy is None else asdict(self.thixotropy),
+                "viscoelasticity": None if self.viscoelasticity is None else asdict(self.viscoelasticity),
+                "temperature_drift": None if self.temperature is None else asdict(self.temperature),
+                "wall_slip": {"slip_length": self.slip_length}}
+
+
+@dataclass
+class LabRecording:
+    """A synthesised recording and its truth: ``recording`` (what the rig gives), ``truth`` (JSON-ready dict),
+    and the true horizontal force ``true_force`` [N] (S, 2) at the simulation's ``sim_times`` [s] (S,)."""
+
+    recording: Recording
+    truth: dict
+    sim_times: np.ndarray
+    true_force: np.ndarray
+
+
+def truth_path(recording_dir: str | Path) -> Path:
+    """Where the truth of the recording ``recording_dir`` lives: ``<dir>.truth.json`` beside it."""
+    path = Path(recording_dir)
+    return path.with_name(path.name + ".truth.json")
+
+
+def density_block(density: float, rig: Rig, sensor: SensorModel, rng: np.random.Generator) -> tuple[
+        DensityMeasurement, dict]:
+    """The Archimedes readings a real rig would give for a fluid of ``density`` [kg/m³], and their true values.
+
+    G = ρ_rod π r² L g (a wooden rod of length L), R = G − ρ g π r² h with the rod held at the nominal immersion
+    depth ± DEPTH_PLACEMENT (uniform); G and R are read through ``sensor.static_reading`` (gain, offset, averaged
+    noise, quantisation), h on a ruler with DEPTH_RESOLUTION (0.1 mm) steps.
+    """
+    area = math.pi * rig.rod.radius**2
+    weight = ROD_DENSITY * area * rig.rod.length * rig.gravity
+    depth = rig.rod.immersion_depth + rng.uniform(-DEPTH_PLACEMENT, DEPTH_PLACEMENT)
+    immersed = weight - density * rig.gravity * area * depth
+    m = DensityMeasurement(rod_weight=sensor.static_reading(weight, rng),
+                           immersed_reading=sensor.static_reading(immersed, rng),
+                           immersed_depth=float(quantise(np.array([depth]), DEPTH_RESOLUTION)[0]))
+    truth = {"rod_weight": weight, "immersed_reading": immersed, "immersed_depth": depth,
+             "rod_density": ROD_DENSITY, "rod_length": rig.rod.length, "gravity": rig.gravity}
+    return m, truth
+
+
+def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, sim_config: SimConfig | None = None,
+               sensor: SensorModel | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
+               name: str | None = None, label: str | None = None, programme: Mapping | None = None,
+               cache_dir: str | Path | None = None) -> LabRecording:
+    """Simulate ``fluid`` stirred along ``trajectory`` in ``rig`` with the truth ``sim_config`` and hidden
+    ``physics``, and read it through ``sensor`` with random numbers from ``seed``. ``label`` is written to the
+    recording's ``fluid`` field (default none: the recording does not name the fluid); ``programme`` (the
+    programme's settings) is only recorded in the truth."""
+    rig, sensor = rig or Rig(), sensor or SensorModel()
+    sim_config = sim_config or SimConfig(dim=2)
+    physics = physics or HiddenPhysicsSpec()
+    if physics.slip_length > 0:
+        rig = replace(rig, rod=replace(rig.rod, slip_length=physics.slip_length))
+    law = fluid.make_law()
+    material = law
+    if physics.in_material:
+        material = HiddenPhysics(law, thixotropy=physics.thixotropy, viscoelasticity=physics.viscoelasticity,
+                                 temperature=physics.temperature, horizon=trajectory.duration)
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    simulator = StirringSimulator(material, rig, sim_config, density=fluid.density, cache_dir=cache_dir)
+    with torch.no_grad():
+        result = simulator(trajectory)
+    times = trajectory.t[0] + result.dt * (np.arange(result.times.numel()) + 0.5)  # mid-step, float64
+    length = rig.rod.immersion_depth if result.per_unit_length else 1.0
+    force = result.force.double().cpu().numpy()[:, :2] * length
+    velocity = np.gradient(trajectory.poses(times)[0], times, axis=0)
+    start = math.ceil(times[0] * sensor.sample_rate - 1e-9) / sensor.sample_rate
+    t = sensor.sample_times(start, float(times[-1]))
+    reading = sensor.read(times, force, velocity, t, rng)
+    xy = trajectory.poses(t)[0]
+    density, density_truth = density_block(fluid.density, rig, sensor, rng)
+    rec = Recording(cup=CupGeometry(radius=rig.cup.radius, fill_height=rig.cup.fill_height),
+                    rod=RodGeometry(radius=rig.rod.radius, immersion_depth=rig.rod.immersion_depth),
+                    sensor=sensor.spec(), density=density, t=t, x=xy[:, 0], y=xy[:, 1], force=reading,
+                    name=name, fluid=label, temperature=fluid.temperature)
+    validate_recording(rec)
+    truth = {
+        "format": TRUTH_FORMAT,
+        "recording": name,
+        "fluid": {"name": fluid.name, "density": fluid.density, "temperature": fluid.temperature,
+                  "law": fluid.law, "law_parameters": law.parameters_si(), "source": fluid.source,
+                  "notes": fluid.notes},
+        "hidden_physics": physics.as_dict(),
+        "sensor": sensor.as_dict(),
+        "density_measurement": density_truth,
+        "programme": dict(programme) if programme is not None else None,
+        "rig": asdict(rig),
+        "simulator": {"config": asdict(sim_config), "dt": result.dt, "steps": int(times.size),
+                      "particles": int(result.state.num_particles), "grid": list(simulator.scene.grid.shape),
+                      "force_scale": ("2-D force per unit length times the rod's immersion depth [m]"
+                                      if result.per_unit_length else "3-D force")},
+        "seed": seed,
+        "units": "SI: m, s, N, kg/m^3, Pa, Pa s, K/s, 1/K; temperature in degC",
+    }
+    return LabRecording(rec, truth, times, force)
+
+
+def write_lab_recording(lab: LabRecording, path: str | Path, *, overwrite: bool = False) -> tuple[Path, Path]:
+    """Save the recording as the directory ``path`` and its truth as ``<path>.truth.json`` beside it (never
+    inside); the recording is read back and validated. Returns (recording dir, truth file)."""
+    path = Path(path)
+    truth_file = truth_path(path)
+    if truth_file.exists() and not overwrite:
+        raise FileExistsError(f"{truth_file}: already exists; pass overwrite=True to replace it")
+    save_recording(lab.recording, path, overwrite=overwrite)
+    load_recording(path)
+    tmp = truth_file.with_name(f".{truth_file.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(lab.truth, indent=2, default=_json_default) + "\n", encoding="utf-8")
+    os.replace(tmp, truth_file)
+    return path, truth_file
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, (tuple, np.ndarray)):
+        return list(value)
+    raise TypeError(f"truth: {type(value).__name__} is not JSON-serialisable")

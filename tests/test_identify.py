@@ -1,0 +1,208 @@
+"""Identification: the pieces against closed forms, and the whole pipeline on a recording with known truth."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from diffstir.identify import FitModel, identify
+from diffstir.identify.optimise import _BroydenJacobian
+from diffstir.identify.problem import StirProblem, Windows, rig_from_recording
+from diffstir.identify.selection import bic, select
+from diffstir.identify.uncertainty import effective_samples, laplace
+from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec,
+                                sensor_reading_np)
+from diffstir.rheology import Newtonian
+from diffstir.trajectory import circle
+
+FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # the rod is 2.5 cells across: coarse, but the same model
+NOISE = 0.002  # N, the synthetic sensor's white noise
+TRUE_ETA = 0.8  # Pa s
+
+
+def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST):
+    """A recording of ``law`` stirred on a circle, made with the fitting simulator itself plus white noise."""
+    traj = circle(radius=0.015, speed=0.06, duration=duration, ramp_time=0.05, sample_rate=250)
+    cup, rod = CupGeometry(radius=0.0425, fill_height=0.13), RodGeometry(radius=0.0125, immersion_depth=0.08)
+    sensor = SensorSpec(mode="tangential", resolution=0.001, sample_rate=250)
+    blank = Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
+                      force=np.zeros(len(traj.t)), name="synthetic")
+    with torch.no_grad():
+        result = StirringSimulator(law, rig_from_recording(blank), config, density=1000.0)(traj)
+    t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
+    force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
+    reading = sensor_reading_np(force, blank.velocity(), sensor)
+    reading += np.random.default_rng(seed).normal(0.0, noise, reading.shape)
+    return Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
+                     force=reading, name="synthetic")
+
+
+@pytest.fixture(scope="module")
+def newtonian_recording():
+    return synthetic_recording(Newtonian(eta=TRUE_ETA))
+
+
+def test_theta_round_trip_and_bounds():
+    model = FitModel.named("carreau", eta0=2.0, eta_inf=0.01, lam=0.5, n=0.6)
+    theta = model.theta()
+    assert theta == pytest.approx([math.log(2.0), math.log(0.01), math.log(0.5), 0.6])
+    model.set_theta(theta + np.array([1.0, 0.0, 0.0, 0.1]))
+    assert model.params_si()["eta0"] == pytest.approx(2.0 * math.e, rel=1e-5)  # float32 parameters
+    model.set_theta(np.full(4, 1e6))  # clipped into the bounds, never outside
+    assert all(lo <= model.params_si()[k] <= hi for k, (lo, hi) in model.material.bounds().items())
+
+
+def test_viscosity_gradient_matches_finite_differences():
+    model = FitModel.named("cross", eta0=3.0, eta_inf=0.02, lam=0.3, n=0.7)
+    rates = np.array([0.1, 3.0, 50.0])
+    _, grad = model.viscosity(rates)
+    theta = model.theta()
+    for j in range(4):
+        step = np.zeros(4)
+        step[j] = 1e-6
+        up, _ = model.viscosity(rates, theta + step)
+        down, _ = model.viscosity(rates, theta - step)
+        np.testing.assert_allclose(grad[:, j], (np.log(up) - np.log(down)) / 2e-6, rtol=1e-5, atol=1e-9)
+
+
+def test_broyden_update_is_exact_for_a_linear_map():
+    a = np.array([[1.0, 2.0], [0.5, -1.0], [3.0, 0.0]])
+
+    class Linear:
+        def __call__(self, theta):
+            return a @ theta
+
+        def jacobian(self, theta):
+            return a + 0.3  # a wrong first Jacobian: the secant condition must still hold after an update
+
+    broyden = _BroydenJacobian(Linear())
+    broyden(np.zeros(2))
+    jac = broyden(np.array([1.0, 0.0]))
+    np.testing.assert_allclose(jac @ np.array([1.0, 0.0]), a @ np.array([1.0, 0.0]))
+
+
+def test_laplace_covariance_is_the_least_squares_covariance_for_white_noise():
+    rng = np.random.default_rng(1)
+    x = np.column_stack([np.ones(400), np.linspace(0, 1, 400)])
+    residuals = rng.normal(0.0, 0.1, 400)
+    model = FitModel.named("power_law", k=1.0, n=1.0)  # any two-parameter model: only its names and bounds matter
+    unc = laplace(model, model.theta(), x, residuals)
+    expected = np.linalg.inv(x.T @ x) * (residuals @ residuals) / 398
+    # white noise: N_eff is N within the sampling error of the lag-1 autocorrelation (~1/sqrt(N))
+    np.testing.assert_allclose(unc.covariance, expected, rtol=3 * 2 / math.sqrt(400))
+
+
+def test_effective_samples_of_an_ar1_series():
+    rng = np.random.default_rng(2)
+    rho, n = 0.8, 20000
+    e = rng.normal(size=n)
+    series = np.empty(n)
+    series[0] = e[0]
+    for i in range(1, n):
+        series[i] = rho * series[i - 1] + e[i]
+    assert effective_samples(series) == pytest.approx(n * (1 - rho) / (1 + rho), rel=0.1)
+
+
+def test_bic_charges_parameters():
+    r = np.random.default_rng(3).normal(0, 1, 100)
+    assert bic(r, 4, 100) - bic(r, 1, 100) == pytest.approx(3 * math.log(100))
+    chosen = select({"a": 1.0, "b": 0.99}, {"a": bic(r, 1, 100), "b": bic(0.999 * r, 4, 100)},
+                    {"a": None, "b": None}, "bic")
+    assert chosen["selected"] == "a" and chosen["lowest_loss"] == "b"
+
+
+def test_windows_split_and_too_short_recordings(newtonian_recording):
+    w = Windows.of(newtonian_recording, 0.3, 0.25)
+    assert (w.start, w.end) == (0.0, pytest.approx(0.3)) and w.split == pytest.approx(0.225)
+    with pytest.raises(RecordingError, match="samples"):
+        StirProblem(newtonian_recording, FAST, 1000.0, Windows.of(newtonian_recording, 0.01, 0.0))
+    with pytest.raises(ValueError, match="holdout_fraction"):
+        Windows.of(newtonian_recording, 0.3, 1.0)
+
+
+def test_missing_density_names_the_file_and_unit(newtonian_recording):
+    with pytest.raises(RecordingError, match="kg/m\\^3"):
+        identify(newtonian_recording, ["newtonian"], config=FAST, baseline=False, progress=False)
+
+
+@pytest.fixture(scope="module")
+def newtonian_identification(newtonian_recording, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit")
+    result = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
+                      holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=out / "checkpoint.json",
+                      log_dir=out / "tb")
+    return result, out
+
+
+def test_newtonian_viscosity_is_recovered_within_its_interval(newtonian_identification):
+    result, _ = newtonian_identification
+    fit, unc = result.fits["newtonian"], result.uncertainty["newtonian"]
+    lo, hi = unc.ci95["eta"]
+    assert lo < TRUE_ETA < hi
+    # the data were made by this simulator, so the error is the noise's: a few standard errors at most
+    assert abs(math.log(fit.model.params_si()["eta"] / TRUE_ETA)) < 4 * unc.standard_error()[0] + 1e-3
+    # the fit's residual is the sensor noise
+    assert unc.residual_std == pytest.approx(NOISE, rel=0.3)
+    assert result.resolvable["viscosity"]
+
+
+def test_power_law_fit_finds_a_newtonian_index(newtonian_identification):
+    result, _ = newtonian_identification
+    unc = result.uncertainty["power_law"]
+    lo, hi = unc.ci95["n"]
+    assert lo < 1.0 < hi
+    # a Newtonian fluid: the simpler law wins on BIC whatever the lowest loss says
+    assert result.selection["selected"] == "newtonian"
+
+
+def test_resume_does_not_refit_finished_models(newtonian_identification, newtonian_recording, monkeypatch):
+    result, out = newtonian_identification
+    calls = []
+    original = StirProblem.simulate
+    monkeypatch.setattr(StirProblem, "simulate", lambda self, m: calls.append(1) or original(self, m))
+    again = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
+                     holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=out / "checkpoint.json")
+    assert calls == []
+    assert again.fits["power_law"].model.params_si() == pytest.approx(result.fits["power_law"].model.params_si())
+    with pytest.raises(ValueError, match="max_iterations"):
+        identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
+                 holdout_fraction=0.25, max_iterations=3, progress=False, checkpoint=out / "checkpoint.json")
+
+
+def test_report_files(newtonian_identification):
+    from diffstir.identify.report import write_report
+
+    result, out = newtonian_identification
+    paths = write_report(result, out)
+    report = json.loads(paths["json"].read_text())
+    assert report["selected"] in report["laws"]
+    assert set(report["laws"]["newtonian"]) >= {"params", "ci95", "loss", "identifiable"}
+    assert set(report["apparent_viscosity"]) >= {"zero_shear", "effective_shear_rate", "at_effective_shear_rate",
+                                                 "refined"}
+    assert report["density"]["value"] == 1000.0
+    assert "newtonian" in paths["md"].read_text()
+    assert all(paths[k].stat().st_size > 0 for k in ("forces", "flow_curves", "losses"))
+    assert any((out / "tb").iterdir())
+
+
+def test_fit_app_writes_a_report(newtonian_recording, tmp_path, monkeypatch):
+    import sys
+
+    from diffstir.apps.fit import main
+    from diffstir.recording import save_recording
+
+    path = save_recording(newtonian_recording, tmp_path / "rec")
+    out = tmp_path / "out"
+    monkeypatch.setattr(sys, "argv", ["diffstir-fit", f"recording={path}", f"out={out}", "model=[newtonian]",
+                                      "baseline=false", "density=1000", "~coarse", "sim.dx=0.01",
+                                      "fit.window=0.3", "fit.max_iterations=3", "progress=false"])
+    main()
+    report = json.loads((out / "report.json").read_text())
+    assert report["selected"] == "newtonian"
+    assert report["density"] == {"value": 1000.0, "ci95": None, "unit": "kg/m^3", "source": "config"}
+    eta = report["laws"]["newtonian"]["params"]["eta"]
+    assert eta == pytest.approx(TRUE_ETA, rel=0.1)
+    assert (out / "checkpoint.json").exists() and (out / "config.yaml").exists()

@@ -1,0 +1,211 @@
+"""The virtual lab: recordings that load and validate, truth kept apart, each sensor effect as defined, hidden
+physics acting in the physically expected direction, determinism. Coarse grids and short horizons keep it fast."""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from diffstir.density import estimate_recording_density
+from diffstir.lab import (
+    Fluid, HiddenPhysics, HiddenPhysicsSpec, SensorModel, TemperatureDrift, Thixotropy, Viscoelasticity, dead_band,
+    density_block, first_order_lag, make_fluid_law, one_sided, programme_speed, quantise, stirring_programme,
+    synthesise, truth_path, write_lab_recording,
+)
+from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.recording import load_recording
+from diffstir.rheology import Newtonian, Tabulated
+from diffstir.rig import Cup, Rig, Rod
+from diffstir.trajectory import spin
+
+# a small cup on a coarse grid (10 x 10 cells in 2-D) with a fixed step, so that rollouts of different lengths
+# share their first steps
+SMALL_RIG = Rig(cup=Cup(radius=0.02, fill_height=0.1, height=0.12), rod=Rod(radius=0.006, immersion_depth=0.05))
+DT = 1.5e-3  # s
+COARSE = SimConfig(dim=2, dx=0.004, sound_speed=1.0, dt=DT)
+FLUID = Fluid(name="test syrup", density=1200.0, law={"name": "newtonian", "params": {"eta": 0.5}})
+LAW = Newtonian(eta=0.3)
+
+
+def spin_torque(material, steps: int, omega: float = 10.0, rig: Rig = SMALL_RIG) -> np.ndarray:
+    """Torque per unit length [N] on the rod spinning at ``omega`` [rad/s] at the cup's centre (Couette flow),
+    at the mid-step times (k + 1/2) DT."""
+    sim = StirringSimulator(material, rig, COARSE, density=1000.0)
+    with torch.no_grad():
+        return sim(spin(omega, steps * DT, ramp_time=0.02)).torque.double().numpy()
+
+
+@functools.cache
+def plain_torque() -> np.ndarray:
+    """spin_torque of the law alone over 200 steps (0.3 s)."""
+    return spin_torque(LAW, 200)
+
+
+@pytest.fixture(scope="module")
+def lab_recording():
+    trajectory = stirring_programme([{"speed": 0.04, "duration": 0.6}], radius=0.003, ramp_time=0.05)
+    sensor = SensorModel(mode="tangential", sample_rate=100.0, resolution=0.001, noise_std=0.002, lag_time=0.01)
+    return synthesise(FLUID, trajectory, rig=SMALL_RIG, sim_config=COARSE, sensor=sensor, seed=7, name="syn",
+                      programme={"radius": 0.003})
+
+
+def test_recording_loads_validates_and_keeps_truth_apart(lab_recording, tmp_path):
+    recording, truth = write_lab_recording(lab_recording, tmp_path / "syn")
+    assert truth == truth_path(recording) and truth.parent == recording.parent
+    assert sorted(p.name for p in recording.iterdir()) == ["recording.yaml", "stir.csv"]
+    rec = load_recording(recording)
+    np.testing.assert_allclose(rec.force, lab_recording.recording.force)
+    assert rec.fluid is None and rec.sensor.resolution == 0.001 and rec.sensor.sample_rate == 100.0
+    text = (recording / "recording.yaml").read_text() + (recording / "stir.csv").read_text()
+    for secret in ("newtonian", "eta", "seed", "noise", "lag", "test syrup", "1200"):
+        assert secret not in text
+    stored = json.loads(truth.read_text())
+    assert stored["fluid"]["density"] == 1200.0 and stored["fluid"]["law_parameters"]["eta"] == pytest.approx(0.5)
+    assert stored["seed"] == 7 and stored["sensor"]["noise_std"] == 0.002
+    # the density block gives the true density within its propagated uncertainty
+    est = estimate_recording_density(rec)
+    assert abs(est.value - 1200.0) < 3 * est.std
+    with pytest.raises(FileExistsError):
+        write_lab_recording(lab_recording, tmp_path / "syn")
+
+
+def test_same_seed_same_recording_other_seed_other_noise(lab_recording):
+    rng = np.random.default_rng
+    sensor = SensorModel(noise_std=0.01, drift_walk=0.01, resolution=0.001)
+    times = np.arange(500) * 1e-3
+    force = np.stack([np.sin(times), np.cos(times)], -1)
+    velocity = np.ones_like(force)
+    sample = sensor.sample_times(0.0, times[-1])
+    a, b, c = (sensor.read(times, force, velocity, sample, rng(s)) for s in (3, 3, 4))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert density_block(1000.0, Rig(), sensor, rng(3)) == density_block(1000.0, Rig(), sensor, rng(3))
+
+
+def test_first_order_lag_reaches_63_percent_after_one_time_constant():
+    dt, tau = 1e-3, 0.05
+    x = np.r_[np.zeros(10), np.ones(400)]
+    y = first_order_lag(x, dt, tau)
+    k = 9 + round(tau / dt)  # one time constant after the step (the step enters at sample 10)
+    assert y[k] == pytest.approx(1 - math.exp(-1), abs=dt / tau)
+    assert y[9] == 0 and np.all(np.diff(y) >= 0) and y[-1] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_quantisation_dead_band_and_one_sided_follow_their_definitions():
+    x = np.linspace(-0.05, 0.05, 1001)
+    q = quantise(x, 0.005)
+    assert np.all(np.abs(q - x) <= 0.0025 + 1e-12)
+    np.testing.assert_allclose(q / 0.005, np.round(q / 0.005), atol=1e-9)
+    d = dead_band(x, 0.01)
+    assert np.all(d[np.abs(x) <= 0.01] == 0)
+    np.testing.assert_allclose(d[x > 0.01], x[x > 0.01] - 0.01)
+    np.testing.assert_allclose(d[x < -0.01], x[x < -0.01] + 0.01)
+    assert np.all(one_sided(x) >= 0) and np.array_equal(one_sided(x)[x > 0], x[x > 0])
+
+
+def test_sensor_gain_offset_drift_and_sampling():
+    sensor = SensorModel(mode="component", axis=(1.0, 0.0), sample_rate=50.0, resolution=0.0, gain_error=0.1,
+                         offset=0.02, drift_rate=0.01)
+    times = np.arange(2001) * 1e-3
+    force = np.stack([np.full_like(times, 0.3), np.full_like(times, 5.0)], -1)
+    sample = sensor.sample_times(0.0, 2.0)
+    assert sample.size == 101 and sample[1] == pytest.approx(0.02)
+    y = sensor.read(times, force, np.zeros_like(force), sample, np.random.default_rng(0))
+    np.testing.assert_allclose(y, 1.1 * 0.3 + 0.02 + 0.01 * sample, rtol=1e-12)
+    assert sensor.spec().resolution is None and sensor.spec().axis == (1.0, 0.0)
+    with pytest.raises(ValueError, match="sensor.lag_time"):
+        SensorModel(lag_time=-1.0)
+
+
+def test_programme_speeds_pauses_and_reversal():
+    segments = [{"speed": 0.05, "duration": 1.0}, {"speed": 0.0, "duration": 0.5}, {"speed": -0.03, "duration": 1.0}]
+    trajectory = stirring_programme(segments, radius=0.01, ramp_time=0.2)
+    speed = np.linalg.norm(trajectory.velocity(), axis=-1)
+    t = trajectory.t
+    assert np.abs(np.linalg.norm(trajectory.xy, axis=-1) - 0.01).max() < 1e-12
+    np.testing.assert_allclose(speed[(t > 0.3) & (t < 0.95)], 0.05, rtol=1e-4)
+    assert speed[(t > 1.25) & (t < 1.45)].max() < 1e-9
+    np.testing.assert_allclose(speed[t > 1.8][:-1], 0.03, rtol=1e-4)
+    np.testing.assert_allclose(np.abs(programme_speed(t[1:-1], segments, 0.2)), speed[1:-1], atol=2e-5)
+    # the reversal: the angular momentum of the rod's axis about the cup's axis changes sign
+    v = trajectory.velocity()
+    lz = trajectory.xy[:, 0] * v[:, 1] - trajectory.xy[:, 1] * v[:, 0]
+    assert lz[t < 0.9].max() > 0 and lz[t > 1.8].min() < 0 and lz[t > 1.8].max() < 0
+    with pytest.raises(ValueError, match="ramp_time"):
+        stirring_programme(segments, radius=0.01, ramp_time=0.6)
+
+
+def test_fluid_laws_from_parameters_and_flow_curves():
+    assert make_fluid_law({"name": "carreau", "params": {"eta0": 1.0, "eta_inf": 0.01, "lam": 0.5, "n": 0.6}})
+    law = make_fluid_law({"name": "tabulated", "flow_curve": "caggioni_carbopol_glycerin_temp/T_20"})
+    assert isinstance(law, Tabulated)
+    law = make_fluid_law({"name": "tabulated", "shear_rate": [1.0, 100.0], "viscosity": [10.0, 0.1]})
+    assert float(law(torch.tensor([10.0], dtype=torch.float64))) == pytest.approx(1.0)  # log-log midpoint
+    with pytest.raises(ValueError, match="fluid.density"):
+        Fluid(name="x", density=1.2, law={"name": "newtonian"})
+
+
+def test_thixotropy_lowers_the_torque_under_steady_shear_and_recovers_after_rest():
+    thixo = HiddenPhysics(LAW, thixotropy=Thixotropy(alpha=1.0, breakdown=2.0, rebuild_time=0.2), horizon=1.0)
+    sim = StirringSimulator(thixo, SMALL_RIG, COARSE, density=1000.0)
+    with torch.no_grad():
+        sheared = sim(spin(10.0, 200 * DT, ramp_time=0.02))
+        rested = sim(spin(1e-6, 300 * DT, ramp_time=0.02), initial=sheared.state)
+    # torque relative to the law alone, which removes the start-up transient of the Couette flow
+    ratio = sheared.torque.double().numpy() / plain_torque()
+    assert 1.0 < ratio[-20:].mean() < 0.95 * ratio[15:30].mean()  # it breaks down under steady shear
+    lam_sheared, lam_rested = sheared.state.material[1:], rested.state.material[1:]
+    assert float(lam_sheared.min()) < 0.5
+    # at rest dλ/dt = (1 - λ)/t_r: after 0.45 s = 2.25 t_r, 1 - λ falls by exp(-2.25); the fluid's slowly dying
+    # swirl keeps breaking it a little
+    expected = 1 - (1 - lam_sheared) * math.exp(-300 * DT / 0.2)
+    assert float((lam_rested - expected).max()) < 1e-6 and float((lam_rested - expected).min()) > -0.1
+
+
+def test_temperature_drift_scales_viscosity_as_configured():
+    drift = TemperatureDrift(rate=0.5, sensitivity=0.2)  # +0.5 K/s, exp(-0.2 dT)
+    warm = HiddenPhysics(LAW, temperature=drift, horizon=1.0)
+    assert float(warm.viscosity_factor(torch.tensor(2.0)).detach()) == pytest.approx(math.exp(-0.2), rel=1e-5)
+    plain, warming = plain_torque(), spin_torque(warm, 200)
+    t = (np.arange(plain.size) + 0.5) * DT
+    late = t > 0.2
+    ratio = warming[late].mean() / plain[late].mean()
+    assert ratio == pytest.approx(math.exp(-0.2 * 0.5 * t[late].mean()), rel=0.01)
+    cooling = HiddenPhysics(LAW, temperature=TemperatureDrift(rate=-0.5, sensitivity=0.1), horizon=2.0)
+    assert cooling.max_viscosity(10.0) == pytest.approx(0.3 * math.exp(0.1), rel=1e-5)
+
+
+def test_wall_slip_lowers_the_drag():
+    slipping = Rig(cup=SMALL_RIG.cup, rod=Rod(radius=0.006, immersion_depth=0.05, slip_length=0.002))
+    slip = spin_torque(LAW, 100, rig=slipping)
+    assert np.abs(slip[-20:]).mean() < 0.9 * np.abs(plain_torque()[80:100]).mean()
+    with pytest.raises(ValueError, match="rod.slip_length"):
+        Rod(slip_length=-1e-3)
+
+
+def test_viscoelastic_stress_lags_the_start_up_and_reaches_the_law():
+    maxwell = HiddenPhysics(LAW, viscoelasticity=Viscoelasticity(relaxation_time=0.03, polymer_fraction=0.8))
+    plain, elastic = plain_torque(), spin_torque(maxwell, 200)
+    assert abs(elastic[8:20].mean()) < 0.8 * abs(plain[8:20].mean())  # the polymer stress builds up over θ
+    assert elastic[-20:].mean() == pytest.approx(plain[-20:].mean(), rel=0.05)  # steady: the law's stress
+
+
+def test_hidden_physics_parameters_receive_gradients():
+    maxwell = HiddenPhysics(Newtonian(eta=0.3), viscoelasticity=Viscoelasticity(relaxation_time=0.05),
+                            thixotropy=Thixotropy(alpha=1.0, breakdown=0.05, rebuild_time=0.2))
+    sim = StirringSimulator(maxwell, SMALL_RIG, COARSE.replace(dtype="float64"), density=1000.0)
+    sim(spin(10.0, 30 * DT, ramp_time=0.02)).torque.sum().backward()
+    grads = {name: p.grad for name, p in maxwell.named_parameters()}
+    assert all(g is not None and torch.isfinite(g) and g != 0 for g in grads.values()), grads
+
+
+def test_physics_config_errors_name_the_field():
+    with pytest.raises(ValueError, match="physics.thixotropy.rebuild_time"):
+        HiddenPhysicsSpec.from_mapping({"thixotropy": {"alpha": 1.0, "breakdown": 0.1, "rebuild_time": -1.0}})
+    with pytest.raises(ValueError, match="unknown field"):
+        HiddenPhysicsSpec.from_mapping({"elasticity": {}})
