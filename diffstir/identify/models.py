@@ -44,7 +44,8 @@ class FitModel:
             if dt is None:
                 raise ValueError("the corotated baseline needs the simulation's time step dt [s] to state its "
                                  "apparent viscosity mu * dt")
-            self.name, self.names, self.units, self.scales = "corotated", ["shear_modulus"], {"shear_modulus": "Pa"}, ["log"]
+            self.name, self.names, self.scales = "corotated", ["shear_modulus"], ["log"]
+            self.units = {"shear_modulus": "Pa"}
             bounds = [COROTATED_BOUNDS]
         else:
             raise TypeError(f"cannot fit {type(material).__name__}; expected a rheology law or Corotated")

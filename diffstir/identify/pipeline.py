@@ -1,6 +1,7 @@
 """Identify a fluid from a recording: density, every model fitted, uncertainty, the selected law.
 
-    result = identify(load_recording("examples/carreau_example"), config=SimConfig(dim=2), checkpoint="out/checkpoint.json")
+    result = identify(load_recording("examples/carreau_example"), config=SimConfig(dim=2),
+                      checkpoint="out/checkpoint.json")
     result.summary()["selected"]
 
 The Newtonian fit comes first: its viscosity and Jacobian give the stir's effective shear rate (``initial``), from
@@ -240,7 +241,8 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
     change = float(np.sqrt(np.mean((newtonian.jacobian[problem.train, 0] * math.log(2.0)) ** 2)))
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
     floor = max(noise, problem.recording.sensor.resolution or 0.0)
-    return {"viscosity": bool(change > floor), "reading_change_per_doubling": change, "noise": float(noise), "unit": "N"}
+    return {"viscosity": bool(change > floor), "reading_change_per_doubling": change, "noise": float(noise),
+            "unit": "N"}
 
 
 def _fixed_step(problem: StirProblem, dt: float) -> StirProblem:
