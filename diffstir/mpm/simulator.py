@@ -74,7 +74,7 @@ class StirringSimulator(nn.Module):
         self.density = float(density)
         self.cache_dir = cache_dir
         self.scene: Scene = build_scene(self.rig, self.config, self.density)
-        # scalar kernels (simdlen 1): inductor's vectorised CPU code was slower than eager on this scene's small
+        # scalar kernels (simdlen 1): inductor's default vectorised CPU code was slower on this scene's small
         # tensors (measured, docs/benchmarks.md)
         self._step = (torch.compile(step, dynamic=False, options={"cpp.simdlen": 1}) if self.config.compile
                       else step)
