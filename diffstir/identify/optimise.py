@@ -79,12 +79,8 @@ class Readings:
             self.cache[key] = reading.double().cpu().numpy()
             self.evaluations += 1
             if self.on_evaluation is not None:
-                self.on_evaluation(self.model.name, self.evaluations, self.loss(self.cache[key]))
+                self.on_evaluation(self.model.name, self.evaluations, self.problem.loss(self.cache[key]))
         return self.cache[key]
-
-    def loss(self, predicted: np.ndarray, train: bool = True) -> float:
-        mask = self.problem.train if train else ~self.problem.train
-        return float(np.mean(np.abs(self.problem.measured[mask] - predicted[mask]))) if mask.any() else math.nan
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """Forward differences d readings / d θ, (M, k); steps point inwards at an upper bound."""
@@ -171,7 +167,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
 
         def jacobian(theta):
             jac = broyden(theta)
-            record(theta, readings.loss(readings(theta)))
+            record(theta, problem.loss(readings(theta)))
             return jac[train]
 
         solution = optimize.least_squares(residuals, np.clip(theta0, model.lower, model.upper), jac=jacobian,
@@ -186,8 +182,8 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
     theta = model.theta()
     predicted = readings(theta)
     jac = readings.jacobian(theta) if initial_jacobian is None or optimizer != "lm" else broyden(theta)
-    return FitResult(model=model, theta=theta, predicted=predicted, jacobian=jac, loss=readings.loss(predicted),
-                     holdout_loss=readings.loss(predicted, train=False) if (~train).any() else None,
+    return FitResult(model=model, theta=theta, predicted=predicted, jacobian=jac, loss=problem.loss(predicted),
+                     holdout_loss=problem.loss(predicted, train=False),
                      history=history, evaluations=readings.evaluations, seconds=time.perf_counter() - start,
                      message=str(message))
 

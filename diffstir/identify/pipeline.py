@@ -169,7 +169,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                                       state["effective_shear_rate"], dt=dt)
             if name in running:
                 model.set_theta(np.array(running[name]))
-            fit_problem = stage_problem if name != "corotated" else _fixed_step(stage_problem, dt)
+            # the corotated baseline's viscosity is mu * dt, so its step is held fixed
+            fit_problem = stage_problem if name != "corotated" else stage_problem.with_config(
+                replace(stage_problem.config, dt=dt))
 
             def on_iteration(m, iteration, loss, theta, name=name):
                 running[name] = [float(t) for t in theta]
@@ -245,14 +247,6 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
             "unit": "N"}
 
 
-def _fixed_step(problem: StirProblem, dt: float) -> StirProblem:
-    """The same problem with the time step held at ``dt`` [s] (the corotated baseline's viscosity is μ Δt)."""
-    fixed = StirProblem.__new__(StirProblem)
-    fixed.__dict__.update(problem.__dict__)
-    fixed.config = replace(problem.config, dt=dt)
-    return fixed
-
-
 def _serialise(fit: FitResult) -> dict:
     return {"theta": fit.theta.tolist(), "predicted": fit.predicted.tolist(), "jacobian": fit.jacobian.tolist(),
             "history": fit.history, "evaluations": fit.evaluations, "seconds": fit.seconds, "message": fit.message,
@@ -262,11 +256,9 @@ def _serialise(fit: FitResult) -> dict:
 def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
     model = FitModel.named(name, dt=dt, **saved["params"])
     predicted = np.array(saved["predicted"])
-    train = problem.train
-    loss = float(np.mean(np.abs(problem.measured[train] - predicted[train])))
-    holdout = float(np.mean(np.abs(problem.measured[~train] - predicted[~train]))) if (~train).any() else None
     return FitResult(model=model, theta=np.array(saved["theta"]), predicted=predicted,
-                     jacobian=np.array(saved["jacobian"]), loss=loss, holdout_loss=holdout, history=saved["history"],
+                     jacobian=np.array(saved["jacobian"]), loss=problem.loss(predicted),
+                     holdout_loss=problem.loss(predicted, train=False), history=saved["history"],
                      evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"])
 
 

@@ -80,6 +80,7 @@ class StirProblem:
         self.config = config
         self.density = float(density)
         self.windows = windows or Windows.of(recording, None, 0.0)
+        self.max_samples = max_samples
         self.rig = rig_from_recording(recording)
         self.trajectory = trajectory_from_recording(recording, self.windows.end)
         self.slice_length = self.rig.rod.immersion_depth if config.dim == 2 else 1.0  # m, or 1 in 3-D
@@ -97,6 +98,16 @@ class StirProblem:
         if self.train.sum() < 8:
             raise RecordingError(f"{recording.source('csv')}: only {int(self.train.sum())} samples before the "
                                  f"held-out split at {self.windows.split:g} s; shorten fit.holdout_fraction")
+
+    def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
+        """The paper's loss, mean |measured - predicted| [N], over the fitted (or the held-out) samples; None when
+        there are no such samples. ``predicted`` [N] holds a reading for every compared sample."""
+        mask = self.train if train else ~self.train
+        return float(np.mean(np.abs(self.measured[mask] - predicted[mask]))) if mask.any() else None
+
+    def with_config(self, config: SimConfig) -> "StirProblem":
+        """The same recording, samples and density, simulated with ``config``."""
+        return StirProblem(self.recording, config, self.density, self.windows, max_samples=self.max_samples)
 
     def simulator(self, material: nn.Module) -> StirringSimulator:
         """The simulator of this recording's rig for a material (a rheology law or a material module)."""

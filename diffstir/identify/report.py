@@ -72,6 +72,11 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    def _save(fig, path: Path) -> Path:
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return path
+
     problem = result.problem
     paths = {}
     fig, axes = plt.subplots(len(result.fits), 1, figsize=(8, 1.8 * len(result.fits) + 0.6), sharex=True,
@@ -83,9 +88,7 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
         ax.set_ylabel("reading [N]")
         ax.legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel("time [s] (dotted: start of the held-out part)")
-    paths["forces"] = out / "forces.png"
-    fig.savefig(paths["forces"], dpi=120)
-    plt.close(fig)
+    paths["forces"] = _save(fig, out / "forces.png")
 
     lo, hi = result.probed_shear_rates()
     rates = np.logspace(np.log10(lo) - 2, np.log10(hi) + 2, 120)
@@ -101,9 +104,7 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     ax.set_xlabel("shear rate [1/s] (dotted: effective)")
     ax.set_ylabel("apparent viscosity [Pa·s]")
     ax.legend(fontsize=7)
-    paths["flow_curves"] = out / "flow_curves.png"
-    fig.savefig(paths["flow_curves"], dpi=120)
-    plt.close(fig)
+    paths["flow_curves"] = _save(fig, out / "flow_curves.png")
 
     fig, ax = plt.subplots(figsize=(6, 3.5), constrained_layout=True)
     for name, fit in result.fits.items():
@@ -113,7 +114,5 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     ax.set_xlabel("forward simulations")
     ax.set_ylabel("paper loss mean |ΔF| [N]")
     ax.legend(fontsize=7)
-    paths["losses"] = out / "losses.png"
-    fig.savefig(paths["losses"], dpi=120)
-    plt.close(fig)
+    paths["losses"] = _save(fig, out / "losses.png")
     return paths
