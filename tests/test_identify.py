@@ -207,3 +207,19 @@ def test_fit_app_writes_a_report(tmp_path, monkeypatch):
     eta = report["laws"]["newtonian"]["params"]["eta"]
     assert eta == pytest.approx(TRUE_ETA, rel=0.1)
     assert (out / "checkpoint.json").exists() and (out / "config.yaml").exists()
+
+
+def test_broyden_ignores_steps_below_the_parameter_resolution():
+    a = np.array([[2.0], [1.0]])
+
+    class Linear:
+        def __call__(self, theta):
+            return a @ np.float32(theta)  # the simulator sees float32 parameters
+
+        def jacobian(self, theta):
+            return a
+
+    broyden = _BroydenJacobian(Linear())
+    broyden(np.array([0.3]))
+    # a step that rounds away in float32 leaves the readings unchanged; the secant would say the Jacobian is 0
+    np.testing.assert_allclose(broyden(np.array([0.3 + 1e-9])), a)

@@ -25,6 +25,10 @@ from scipy import optimize
 from .models import FitModel
 from .problem import StirProblem
 
+#: Smallest step in θ that updates the Broyden Jacobian: 100 float32 ulps of a relative change; a smaller step
+#: cannot change the simulation's float32 parameters, so its secant carries no information.
+MIN_SECANT_STEP = 100 * float(np.finfo(np.float32).eps)
+
 #: Finite-difference steps in θ: 5 % relative change of a log-scaled parameter, 0.02 of a dimensionless index.
 FD_STEP = {"log": 0.05, "linear": 0.02}
 
@@ -114,7 +118,7 @@ class _BroydenJacobian:
             self.value = self.readings.jacobian(theta)
         elif self.theta is not None:
             step = theta - self.theta
-            if step @ step > 0:
+            if np.abs(step).max() > MIN_SECANT_STEP:
                 self.value = self.value + np.outer(f - self.f - self.value @ step, step) / (step @ step)
         self.theta, self.f = theta.copy(), f
         return self.value
@@ -178,8 +182,10 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         best, message = _adam(problem, model, readings, theta0, max_iterations, learning_rate, record)
     else:
         raise ValueError(f"fit.optimizer = {optimizer!r}; expected 'lm' or 'adam'")
-    model.set_theta(best)
-    theta = model.theta()
+    # the optimiser's own θ, not one read back from the float32 parameters: the readings there are cached, and a
+    # rounding-sized step would otherwise cost a simulation and a degenerate Broyden update
+    theta = np.clip(np.asarray(best, dtype=np.float64), model.lower, model.upper)
+    model.set_theta(theta)
     predicted = readings(theta)
     jac = readings.jacobian(theta) if initial_jacobian is None or optimizer != "lm" else broyden(theta)
     return FitResult(model=model, theta=theta, predicted=predicted, jacobian=jac, loss=problem.loss(predicted),

@@ -255,6 +255,7 @@ def _serialise(fit: FitResult) -> dict:
 
 def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
     model = FitModel.named(name, dt=dt, **saved["params"])
+    model.set_theta(np.array(saved["theta"]))  # the fit's exact θ, as the finished fit set it
     predicted = np.array(saved["predicted"])
     return FitResult(model=model, theta=np.array(saved["theta"]), predicted=predicted,
                      jacobian=np.array(saved["jacobian"]), loss=problem.loss(predicted),
