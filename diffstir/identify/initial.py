@@ -2,59 +2,114 @@
 
 Metzner and Otto (1957) read a mixer's apparent viscosity at an effective shear rate proportional to its speed.
 Here the proportionality is measured on the recording's own trajectory instead of taken from a table: a power-law
-fluid (index ``PROBE_INDEX``) whose simulated readings equal those of a Newtonian fluid of viscosity η_N has
-η_N = K γ̇_eff^(n-1), which defines the effective shear rate γ̇_eff [1/s]. Each law then starts from parameters
-that give η(γ̇_eff) = η_N with a typical shape, so a few Gauss-Newton steps suffice.
+fluid (index ``PROBE_INDEX``) whose simulated mean |reading| equals that of a Newtonian fluid of viscosity η_N has
+η_N = K γ̇_eff^(n-1), which defines the effective shear rate γ̇_eff [1/s] (Metzner and Otto matched power; the
+mean |force| at the same rod speed is the same match).
+
+The Newtonian-equivalent viscosity itself is read off a ladder of Newtonian simulations one decade apart
+(``ViscosityLadder``): the tabulated estimate the Gauss-Newton fit starts from, and the preliminary estimate the
+learned rectifier (``diffstir.rectifier``) refines. Each law then starts from parameters that give
+η(γ̇_eff) = η_N with a typical shape, so a few Gauss-Newton steps suffice.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..rheology import LAWS
 from .models import FitModel
-from .optimise import FitResult, Readings
+from .optimise import Readings
 from .problem import StirProblem
 
 PROBE_INDEX = 0.5  # flow index n of the power-law probe
 
 
+def mean_stirring_speed(problem: StirProblem) -> float:
+    """The rod's mean speed [m/s] over the fitted samples (the paper's "average stirring rate")."""
+    return float(np.mean(np.linalg.norm(problem.velocity[problem.train], axis=1)))
+
+
 def characteristic_shear_rate(problem: StirProblem) -> float:
     """U / a [1/s]: the rod's mean speed over its radius, the scale that γ̇_eff is measured against."""
-    speed = np.linalg.norm(problem.velocity, axis=1)
-    return max(float(np.mean(speed)), 1e-4) / problem.rig.rod.radius
+    return max(mean_stirring_speed(problem), 1e-4) / problem.rig.rod.radius
 
 
-def newtonian_start(problem: StirProblem, probes: tuple[float, float] = (0.01, 1.0)) -> float:
-    """A first Newtonian viscosity [Pa·s] from two forward simulations: the mean |reading| is taken as linear in
-    η between the probe viscosities (Stokes drag plus an inertial offset) and solved for the measured one."""
-    model = FitModel.named("newtonian", eta=probes[0])
-    readings = Readings(problem, model)
-    low, high = (float(np.mean(np.abs(readings(np.log([eta]))[problem.train]))) for eta in probes)
-    target = float(np.mean(np.abs(problem.measured[problem.train])))
-    slope = (high - low) / (probes[1] - probes[0])
-    eta = probes[0] + (target - low) / slope if slope > 0 else probes[0]
-    lo, hi = (math.exp(b) for b in (model.lower[0], model.upper[0]))
-    return float(min(max(eta, 10 * lo), hi / 10))
+#: Probe viscosities [Pa·s] of the Newtonian ladder: one per decade over the liquids a cup is stirred with.
+LADDER_VISCOSITIES = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
 
 
-def effective_shear_rate(problem: StirProblem, newtonian: FitResult) -> float:
-    """γ̇_eff [1/s] (see the module docstring) from one power-law simulation and the Newtonian fit's Jacobian:
-    the probe's readings R_p are matched by the Newtonian readings R_N + J Δ, Δ = ln(η_N'/η_N) by least squares."""
-    eta_n = newtonian.model.params_si()["eta"]
+@dataclass(frozen=True)
+class ViscosityLadder:
+    """The mean |reading| [N] over a recording's fitted samples, simulated for Newtonian fluids of ``viscosities``
+    [Pa·s]; ``invert`` reads a Newtonian-equivalent viscosity off it.
+
+    Between neighbouring probes the reading is taken as linear in η (a Stokes drag ∝ η on top of an inertial
+    part), and the top segment is extended beyond the last probe. Probes whose reading does not exceed every lower
+    probe's (inertia-dominated, thin fluids) carry no viscosity information and are dropped, so readings below the
+    lowest informative probe map to its viscosity: ``resolves`` says whether a reading is above it.
+    """
+
+    viscosities: tuple[float, ...]
+    mean_abs: tuple[float, ...]
+
+    @classmethod
+    def simulate(cls, problem: StirProblem, viscosities: tuple[float, ...] = LADDER_VISCOSITIES,
+                 on_evaluation=None) -> "ViscosityLadder":
+        """One forward simulation per probe viscosity on ``problem`` (``on_evaluation`` as for ``Readings``)."""
+        model = FitModel.named("newtonian", eta=viscosities[0])
+        readings = Readings(problem, model, on_evaluation)
+        means = tuple(float(np.mean(np.abs(readings(np.log([eta]))[problem.train]))) for eta in viscosities)
+        return cls(tuple(float(v) for v in viscosities), means)
+
+    def _informative(self) -> tuple[np.ndarray, np.ndarray]:
+        """(readings, viscosities) of the informative probes; the first is the floor: the highest viscosity of
+        the flat start, with the highest reading seen on it."""
+        force, eta = [self.mean_abs[0]], [self.viscosities[0]]
+        for f, v in zip(self.mean_abs[1:], self.viscosities[1:]):
+            if f > force[-1]:
+                force.append(f)
+                eta.append(v)
+            elif len(force) == 1:  # still on the flat, inertia-dominated start: move the floor up
+                eta[0] = v
+        return np.array(force), np.array(eta)
+
+    def resolves(self, mean_abs: float) -> bool:
+        """Whether a mean |reading| [N] lies above the lowest informative probe's."""
+        force, _ = self._informative()
+        return bool(len(force) > 1 and mean_abs > force[0])
+
+    def invert(self, mean_abs: float, upper: float = 1e3) -> float:
+        """The Newtonian viscosity [Pa·s] (at most ``upper``) whose simulated mean |reading| is ``mean_abs`` [N]."""
+        force, eta = self._informative()
+        if len(force) == 1 or mean_abs <= force[0]:
+            return float(eta[0])
+        if mean_abs > force[-1]:
+            slope = (eta[-1] - eta[-2]) / (force[-1] - force[-2])
+            return float(min(eta[-1] + slope * (mean_abs - force[-1]), upper))
+        return float(np.interp(mean_abs, force, eta))
+
+    def estimate(self, problem: StirProblem) -> float:
+        """The Newtonian-equivalent viscosity [Pa·s] of ``problem``'s measured readings (fitted samples)."""
+        upper = math.exp(FitModel.named("newtonian", eta=1.0).upper[0])
+        return self.invert(float(np.mean(np.abs(problem.measured[problem.train]))), upper)
+
+
+def effective_shear_rate(problem: StirProblem, ladder: ViscosityLadder, eta_n: float, on_evaluation=None) -> float:
+    """γ̇_eff [1/s] (see the module docstring) from one power-law simulation: a probe of index ``PROBE_INDEX``
+    with η(U/a) = ``eta_n`` [Pa·s] reads like a Newtonian fluid of viscosity η_p (``ladder``), so
+    γ̇_eff = (η_p / K)^(1/(n-1)). Kept within [0.1, 10] U/a, where Metzner-Otto constants of stirrers lie,
+    in case the probe falls where the ladder does not resolve viscosity."""
     rate0 = characteristic_shear_rate(problem)
     k = eta_n * rate0 ** (1.0 - PROBE_INDEX)
     probe = FitModel.named("power_law", k=k, n=PROBE_INDEX)
-    probe_readings = Readings(problem, probe)(probe.theta())
-    train = problem.train
-    j = newtonian.jacobian[train, 0]
-    if not float(j @ j) > 0:
-        return rate0
-    delta = float(j @ (probe_readings[train] - newtonian.predicted[train])) / float(j @ j)
-    eta_equivalent = eta_n * math.exp(max(min(delta, 5.0), -5.0))
-    return float((eta_equivalent / k) ** (1.0 / (PROBE_INDEX - 1.0)))
+    k = probe.params_si()["k"]  # within the law's bounds
+    reading = Readings(problem, probe, on_evaluation)(probe.theta())
+    eta_p = ladder.invert(float(np.mean(np.abs(reading[problem.train]))))
+    rate = (eta_p / k) ** (1.0 / (PROBE_INDEX - 1.0))
+    return float(min(max(rate, 0.1 * rate0), 10.0 * rate0))
 
 
 def initial_model(name: str, eta_n: float, shear_rate: float, dt: float | None = None) -> FitModel:

@@ -22,7 +22,9 @@ import numpy as np
 from ..density import estimate_density
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
-from .initial import effective_shear_rate, initial_model, newtonian_start
+from .initial import (
+    LADDER_VISCOSITIES, ViscosityLadder, effective_shear_rate, initial_model, mean_stirring_speed,
+)
 from .models import FitModel
 from .optimise import FitResult, fit_model, noise_scale
 from .problem import StirProblem, Windows
@@ -45,6 +47,8 @@ class Identification:
     selection: dict
     resolvable: dict
     seconds: float
+    preliminary: dict
+    refined: dict | None = None
 
     @property
     def selected(self) -> FitResult:
@@ -56,7 +60,7 @@ class Identification:
         eta, lo, hi = log_viscosity_interval(fit.model, fit.theta, unc.covariance, self.effective_shear_rate)
         return {"zero_shear": fit.model.zero_shear_viscosity(), "effective_shear_rate": self.effective_shear_rate,
                 "at_effective_shear_rate": float(eta[0]), "at_effective_shear_rate_ci95": [float(lo[0]), float(hi[0])],
-                "refined": None}
+                "refined": self.refined}
 
     def summary(self) -> dict:
         """The report as JSON-serialisable data (SI units; see docs/identification.md)."""
@@ -82,6 +86,7 @@ class Identification:
             "laws": laws_only,
             "baseline": laws.get("corotated"),
             "apparent_viscosity": self.apparent_viscosity(self.selection["selected"]),
+            "preliminary": self.preliminary,
             "resolvable": self.resolvable,
             "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
                         "end": self.problem.windows.end, "unit": "s"},
@@ -125,7 +130,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
     """
     started = time.perf_counter()
-    density_report = _density(recording, density)
+    density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)
     problem = StirProblem(recording, config, density_report["value"], windows)
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
@@ -163,7 +168,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                                            shear_modulus=start[name].model.params_si()["shear_modulus"]
                                            * start[name].model.dt / dt)
             elif name == "newtonian":
-                model = FitModel.named("newtonian", eta=newtonian_start(stage_problem))
+                model = FitModel.named("newtonian", eta=state["ladder"]["estimate"])
             else:
                 model = initial_model(name, fits["newtonian"].model.params_si()["eta"],
                                       state["effective_shear_rate"], dt=dt)
@@ -183,10 +188,25 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                                    on_iteration=on_iteration)
             done[name] = _serialise(fits[name])
             running.pop(name, None)
-            if name == "newtonian" and "effective_shear_rate" not in state:
-                state["effective_shear_rate"] = effective_shear_rate(stage_problem, fits["newtonian"])
             save()
         return fits
+
+    def start_estimates(stage_problem: StirProblem) -> None:
+        """The Newtonian ladder, its estimate (the fit's start, the rectifier's input) and γ̇_eff, once."""
+        if "ladder" not in state:
+            ladder = ViscosityLadder.simulate(stage_problem, on_evaluation=tracker.evaluation)
+            eta = ladder.estimate(stage_problem)
+            state["ladder"] = {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs),
+                               "estimate": eta, "resolves": ladder.resolves(
+                                   float(np.mean(np.abs(stage_problem.measured[stage_problem.train])))),
+                               "dim": stage_problem.config.dim, "dx": stage_problem.config.dx,
+                               "sound_speed": stage_problem.config.sound_speed}
+            save()
+        if "effective_shear_rate" not in state:
+            ladder = ViscosityLadder(tuple(state["ladder"]["viscosities"]), tuple(state["ladder"]["mean_abs"]))
+            state["effective_shear_rate"] = effective_shear_rate(stage_problem, ladder, state["ladder"]["estimate"],
+                                                                 on_evaluation=tracker.evaluation)
+            save()
 
     def stage_dt(stage: str, stage_problem: StirProblem, start: dict[str, FitResult] | None) -> float:
         """The stage's time step for the corotated baseline [s]: that of a Newtonian fluid at the first estimate."""
@@ -198,9 +218,11 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
 
     state.setdefault("dt", {})
     if coarse is None:
+        start_estimates(problem)
         fits = run_stage("fit", problem, max_iterations, None)
     else:
         coarse_problem = StirProblem(recording, coarse, density_report["value"], windows)
+        start_estimates(coarse_problem)
         fits = run_stage("fine", problem, fine_iterations, run_stage("coarse", coarse_problem, max_iterations, None))
     tracker.close()
 
@@ -220,10 +242,12 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]),
-                          seconds=time.perf_counter() - started)
+                          seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem))
 
 
-def _density(recording: Recording, density: float | None) -> dict:
+def density_estimate(recording: Recording, density: float | None) -> dict:
+    """The fluid's density [kg/m³] with its 95 % interval: Archimedes from the recording's density block, or
+    ``density`` from the config when the recording has none."""
     if recording.density is not None:
         est = estimate_density(recording.density, rod_radius=recording.rod.radius,
                                **({"force_resolution": recording.sensor.resolution}
@@ -235,6 +259,15 @@ def _density(recording: Recording, density: float | None) -> dict:
     if not 100.0 <= density <= 25000.0:
         raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
     return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}
+
+
+def _preliminary(ladder: dict, problem: StirProblem) -> dict:
+    """The ladder's Newtonian-equivalent viscosity and the stir's mean speed: the rectifier's inputs."""
+    return {"viscosity": ladder["estimate"], "mean_stirring_speed": mean_stirring_speed(problem),
+            "resolves": ladder["resolves"], "units": {"viscosity": "Pa s", "mean_stirring_speed": "m/s"},
+            "estimator": {"name": "newtonian_ladder", "dim": ladder["dim"], "dx": ladder["dx"],
+                          "sound_speed": ladder["sound_speed"], "probes": ladder["viscosities"],
+                          "mean_abs": ladder["mean_abs"]}}
 
 
 def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
@@ -287,7 +320,7 @@ class _Tracker:
 
     def __init__(self, names: list[str], max_iterations: int, progress: bool, log_dir: str | Path | None):
         sizes = {"newtonian": 1, "corotated": 1}
-        budget = 3 + sum((max_iterations + 2) * (sizes.get(n, 4) + 1) for n in names)
+        budget = len(LADDER_VISCOSITIES) + 1 + sum((max_iterations + 2) * (sizes.get(n, 4) + 1) for n in names)
         self.bar = None
         if progress:
             from tqdm.auto import tqdm

@@ -38,6 +38,13 @@ def markdown(summary: dict) -> str:
              f"- apparent viscosity at the effective shear rate: {av['at_effective_shear_rate']:.4g} Pa·s "
              f"(95 % CI {av['at_effective_shear_rate_ci95'][0]:.4g}-{av['at_effective_shear_rate_ci95'][1]:.4g}); "
              f"at zero shear: {av['zero_shear']:.4g} Pa·s"]
+    pre, refined = summary["preliminary"], av["refined"]
+    lines.append(f"- preliminary (Newtonian ladder, {pre['estimator']['dim']}-D dx = {pre['estimator']['dx']} m) "
+                 f"viscosity: {pre['viscosity']:.4g} Pa·s at a mean stirring speed of "
+                 f"{pre['mean_stirring_speed']:.3g} m/s")
+    if refined is not None:
+        value = "-" if refined["value"] is None else f"{refined['value']:.4g} Pa·s"
+        lines.append(f"- refined by the rectifier: {value} ({refined['note']})")
     if not summary["resolvable"]["viscosity"]:
         lines.append("- **not identifiable**: doubling the viscosity changes the reading by "
                      f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "

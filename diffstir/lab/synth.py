@@ -108,15 +108,30 @@ def density_block(density: float, rig: Rig, sensor: SensorModel, rng: np.random.
     return m, truth
 
 
-def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, sim_config: SimConfig | None = None,
-               sensor: SensorModel | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
-               name: str | None = None, label: str | None = None, programme: Mapping | None = None,
-               cache_dir: str | Path | None = None) -> LabRecording:
+@dataclass
+class TruthSimulation:
+    """A truth simulation before any sensor reads it: the horizontal force on the rod ``force`` [N] (S, 2) at
+    mid-step ``times`` [s] (S,), and what made it. One truth simulation can be read by many sensor models."""
+
+    fluid: Fluid
+    trajectory: Trajectory
+    rig: Rig
+    sim_config: SimConfig
+    physics: HiddenPhysicsSpec
+    times: np.ndarray
+    force: np.ndarray
+    dt: float
+    particles: int
+    grid: list[int]
+    per_unit_length: bool
+
+
+def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None,
+                   sim_config: SimConfig | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
+                   cache_dir: str | Path | None = None) -> TruthSimulation:
     """Simulate ``fluid`` stirred along ``trajectory`` in ``rig`` with the truth ``sim_config`` and hidden
-    ``physics``, and read it through ``sensor`` with random numbers from ``seed``. ``label`` is written to the
-    recording's ``fluid`` field (default none: the recording does not name the fluid); ``programme`` (the
-    programme's settings) is only recorded in the truth."""
-    rig, sensor = rig or Rig(), sensor or SensorModel()
+    ``physics`` (``seed`` seeds torch)."""
+    rig = rig or Rig()
     sim_config = sim_config or SimConfig(dim=2)
     physics = physics or HiddenPhysicsSpec()
     if physics.slip_length > 0:
@@ -126,7 +141,6 @@ def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, 
     if physics.in_material:
         material = HiddenPhysics(law, thixotropy=physics.thixotropy, viscoelasticity=physics.viscoelasticity,
                                  temperature=physics.temperature, horizon=trajectory.duration)
-    rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     simulator = StirringSimulator(material, rig, sim_config, density=fluid.density, cache_dir=cache_dir)
     with torch.no_grad():
@@ -134,11 +148,24 @@ def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, 
     times = trajectory.t[0] + result.dt * (np.arange(result.times.numel()) + 0.5)  # mid-step, float64
     length = rig.rod.immersion_depth if result.per_unit_length else 1.0
     force = result.force.double().cpu().numpy()[:, :2] * length
-    velocity = np.gradient(trajectory.poses(times)[0], times, axis=0)
+    return TruthSimulation(fluid, trajectory, rig, sim_config, physics, times, force, result.dt,
+                           int(result.state.num_particles), list(simulator.scene.grid.shape),
+                           bool(result.per_unit_length))
+
+
+def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *, seed: int = 0,
+               name: str | None = None, label: str | None = None, programme: Mapping | None = None) -> LabRecording:
+    """Read a truth simulation through ``sensor`` with random numbers from ``seed`` and synthesise the density
+    readings. ``label`` is written to the recording's ``fluid`` field (default none: the recording does not name
+    the fluid); ``programme`` (the programme's settings) is only recorded in the truth."""
+    sensor = sensor or SensorModel()
+    fluid, rig, sim_config, times = truth_sim.fluid, truth_sim.rig, truth_sim.sim_config, truth_sim.times
+    rng = np.random.default_rng(seed)
+    velocity = np.gradient(truth_sim.trajectory.poses(times)[0], times, axis=0)
     start = math.ceil(times[0] * sensor.sample_rate - 1e-9) / sensor.sample_rate
     t = sensor.sample_times(start, float(times[-1]))
-    reading = sensor.read(times, force, velocity, t, rng)
-    xy = trajectory.poses(t)[0]
+    reading = sensor.read(times, truth_sim.force, velocity, t, rng)
+    xy = truth_sim.trajectory.poses(t)[0]
     density, density_truth = density_block(fluid.density, rig, sensor, rng)
     rec = Recording(cup=CupGeometry(radius=rig.cup.radius, fill_height=rig.cup.fill_height),
                     rod=RodGeometry(radius=rig.rod.radius, immersion_depth=rig.rod.immersion_depth),
@@ -149,21 +176,32 @@ def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, 
         "format": TRUTH_FORMAT,
         "recording": name,
         "fluid": {"name": fluid.name, "density": fluid.density, "temperature": fluid.temperature,
-                  "law": fluid.law, "law_parameters": law.parameters_si(), "source": fluid.source,
+                  "law": fluid.law, "law_parameters": fluid.make_law().parameters_si(), "source": fluid.source,
                   "notes": fluid.notes},
-        "hidden_physics": physics.as_dict(),
+        "hidden_physics": truth_sim.physics.as_dict(),
         "sensor": sensor.as_dict(),
         "density_measurement": density_truth,
         "programme": dict(programme) if programme is not None else None,
         "rig": asdict(rig),
-        "simulator": {"config": asdict(sim_config), "dt": result.dt, "steps": int(times.size),
-                      "particles": int(result.state.num_particles), "grid": list(simulator.scene.grid.shape),
+        "simulator": {"config": asdict(sim_config), "dt": truth_sim.dt, "steps": int(times.size),
+                      "particles": truth_sim.particles, "grid": truth_sim.grid,
                       "force_scale": ("2-D force per unit length times the rod's immersion depth [m]"
-                                      if result.per_unit_length else "3-D force")},
+                                      if truth_sim.per_unit_length else "3-D force")},
         "seed": seed,
         "units": "SI: m, s, N, kg/m^3, Pa, Pa s, K/s, 1/K; temperature in degC",
     }
-    return LabRecording(rec, truth, times, force)
+    return LabRecording(rec, truth, times, truth_sim.force)
+
+
+def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, sim_config: SimConfig | None = None,
+               sensor: SensorModel | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
+               name: str | None = None, label: str | None = None, programme: Mapping | None = None,
+               cache_dir: str | Path | None = None) -> LabRecording:
+    """Simulate the truth (``simulate_truth``) and read it through ``sensor`` (``read_truth``) with random numbers
+    from ``seed``."""
+    truth_sim = simulate_truth(fluid, trajectory, rig=rig, sim_config=sim_config, physics=physics, seed=seed,
+                               cache_dir=cache_dir)
+    return read_truth(truth_sim, sensor, seed=seed, name=name, label=label, programme=programme)
 
 
 def write_lab_recording(lab: LabRecording, path: str | Path, *, overwrite: bool = False) -> tuple[Path, Path]:

@@ -1,0 +1,43 @@
+"""diffstir-pairs: make one shard of the rectifier's training pairs, or gather the shards (``collect=true``).
+
+    diffstir-pairs -m shard='range(25)' hydra/launcher=joblib hydra.launcher.n_jobs=2
+    diffstir-pairs collect=true
+"""
+
+from __future__ import annotations
+
+import sys
+
+import hydra
+import torch
+from hydra.utils import instantiate, to_absolute_path
+from omegaconf import DictConfig, OmegaConf
+
+from diffstir.apps import CONF_DIR
+from diffstir.rectifier.pairs import collect, design_from_mapping, run_shard
+
+
+@hydra.main(config_path=CONF_DIR, config_name="pairs", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    torch.set_num_threads(int(cfg.threads))
+    design = design_from_mapping(OmegaConf.to_container(cfg.pairs.design, resolve=True))
+    out = to_absolute_path(str(cfg.out))
+    if cfg.collect:
+        manifest = collect(design, out)
+        print(f"{manifest['pairs']} of {manifest['expected_pairs']} pairs from {manifest['fluids']} fluids; "
+              f"wrote {out}/pairs.jsonl and {out}/manifest.json")
+        if not manifest["complete"]:
+            short = [s["shard"] for s in manifest["shards"] if s["missing_fluids"] or s["failed"]]
+            sys.exit(f"incomplete: shards {short} lack pairs (failed fluids: {manifest['failed']}); "
+                     "rerun their shards to resume")
+        return
+    report = run_shard(design, int(cfg.shard), out, truth_config=instantiate(cfg.truth),
+                       estimator_config=instantiate(cfg.estimator), retries=int(cfg.retries))
+    print(f"shard {report['shard']}: {report['fluids']} of {report['expected_fluids']} fluids")
+    if report["failed"]:
+        sys.exit(f"shard {report['shard']}: fluids {report['failed']} failed after {cfg.retries + 1} attempts "
+                 "(see shards/*.failures.jsonl); rerun the shard to retry them")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,79 @@
+"""diffstir-train-rectifier: train the rectifier on a pairs file; write the Lightning checkpoint and a card with
+the exact command, the data's SHA-256 and the metrics on held-out fluids.
+
+    diffstir-train-rectifier data=checkpoints/rectifier/pairs.jsonl out=checkpoints/rectifier
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shlex
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import hydra
+import lightning as L
+import torch
+from hydra.utils import to_absolute_path
+from lightning.pytorch.loggers import TensorBoardLogger
+from omegaconf import DictConfig, OmegaConf
+
+from diffstir.apps import CONF_DIR
+from diffstir.rectifier.training import PairData, evaluate, train
+
+
+@hydra.main(config_path=CONF_DIR, config_name="rectifier", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    torch.set_num_threads(int(cfg.threads))
+    L.seed_everything(int(cfg.train.seed), workers=True)
+    data_path, out = Path(to_absolute_path(str(cfg.data))), Path(to_absolute_path(str(cfg.out)))
+    out.mkdir(parents=True, exist_ok=True)
+    data = PairData(data_path, list(cfg.model.inputs), val_fraction=cfg.split.val_fraction,
+                    test_fraction=cfg.split.test_fraction, batch_size=int(cfg.train.batch_size),
+                    seed=int(cfg.split.seed))
+    estimators = {json.dumps(p["estimator_config"], sort_keys=True) for p in data.all_pairs}
+    if len(estimators) != 1:
+        sys.exit(f"{data_path}: pairs from {len(estimators)} estimator resolutions; train on one")
+    manifest_path = data_path.parent / "manifest.json"
+    metadata = {
+        "data": str(cfg.data), "data_sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
+        "manifest": json.loads(manifest_path.read_text()) if manifest_path.exists() else None,
+        "estimator": json.loads(estimators.pop()),
+        "truth": data.all_pairs[0]["truth_config"],
+    }
+    if metadata["manifest"] is not None:
+        metadata["manifest"] = {k: metadata["manifest"][k] for k in
+                                ("design_digest", "pairs", "fluids", "complete", "sha256")}
+    started = time.perf_counter()
+    module, trainer = train(data, hidden=list(cfg.model.hidden), activation=cfg.model.activation,
+                            learning_rate=float(cfg.train.learning_rate), epochs=int(cfg.train.epochs),
+                            early_stopping_patience=int(cfg.train.patience) if cfg.train.early_stopping else None,
+                            accelerator=cfg.device, logger=TensorBoardLogger(str(out), name="tensorboard"),
+                            metadata=metadata)
+    seconds = time.perf_counter() - started
+    trainer.save_checkpoint(out / "rectifier.ckpt")
+    card = {
+        "command": " ".join(["diffstir-train-rectifier", *map(shlex.quote, sys.argv[1:])]),
+        "trained": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "config": OmegaConf.to_container(cfg, resolve=True), **metadata,
+        "fluids": {"train": len({p["fluid_id"] for p in data.train}), "val": len({p["fluid_id"] for p in data.val}),
+                   "test": len({p["fluid_id"] for p in data.test})},
+        "pairs": {"train": len(data.train), "val": len(data.val), "test": len(data.test),
+                  "not_resolving": sum(not p["resolves"] for p in data.all_pairs)},
+        "epochs": trainer.current_epoch, "seconds": seconds,
+        "training_range": {name: [float(lo), float(hi)] for name, lo, hi in
+                           zip(module.rectifier.inputs, module.rectifier.x_min, module.rectifier.x_max)},
+        "metrics": {"val": evaluate(module.rectifier, data.val), "test": evaluate(module.rectifier, data.test)},
+    }
+    (out / "card.json").write_text(json.dumps(card, indent=1) + "\n")
+    test = card["metrics"]["test"]
+    print(f"test fluids: MAE {test['preliminary']['mae_mpas']:.1f} -> {test['refined']['mae_mpas']:.1f} mPa s, "
+          f"RMSE {test['preliminary']['rmse_mpas']:.1f} -> {test['refined']['rmse_mpas']:.1f} mPa s; "
+          f"wrote {out / 'rectifier.ckpt'} and {out / 'card.json'}")
+
+
+if __name__ == "__main__":
+    main()

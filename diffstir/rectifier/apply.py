@@ -1,0 +1,55 @@
+"""Applying a trained rectifier to an identification's preliminary estimate, without silent extrapolation.
+
+The refined viscosity is given only when the recording resolves viscosity, the preliminary estimate was made at
+the resolution the rectifier was trained on, and every input lies inside the training range; otherwise the
+value is null and ``note`` says why.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from .model import Rectifier
+from .training import RectifierModule
+
+
+def load_rectifier(path: str | Path) -> tuple[Rectifier, dict]:
+    """The rectifier of a Lightning checkpoint written by ``diffstir-train-rectifier``, and its metadata."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no rectifier checkpoint (train one with diffstir-train-rectifier, or set "
+                                "rectifier.checkpoint=null to skip refinement)")
+    module = RectifierModule.load_from_checkpoint(str(path), map_location="cpu", weights_only=True)
+    return module.rectifier.eval(), dict(module.hparams.metadata or {})
+
+
+def refine(rectifier: Rectifier, metadata: dict, preliminary: dict, density: float, checkpoint: str) -> dict:
+    """The report's ``apparent_viscosity.refined``: {value [Pa·s] or None, preliminary, inputs, note, ...}.
+
+    ``preliminary`` is ``Identification.preliminary``; ``density`` [kg/m³] the density estimate."""
+    available = {"mean_stirring_speed": preliminary["mean_stirring_speed"],
+                 "preliminary_viscosity": preliminary["viscosity"], "density_estimate": density}
+    inputs = {name: available[name] for name in rectifier.inputs}
+    out = {"value": None, "unit": "Pa s", "preliminary": preliminary["viscosity"], "inputs": inputs,
+           "checkpoint": checkpoint, "note": ""}
+    trained = metadata.get("estimator", {})
+    used = preliminary["estimator"]
+    mismatched = [k for k in ("dim", "dx", "sound_speed") if trained.get(k) != used.get(k)]
+    if mismatched:
+        out["note"] = (f"not refined: the preliminary estimate was made with {', '.join(f'{k}={used.get(k)}' for k in mismatched)}, "
+                       f"the rectifier was trained on {', '.join(f'{k}={trained.get(k)}' for k in mismatched)}")
+        return out
+    if not preliminary["resolves"]:
+        out["note"] = "not refined: the force does not resolve viscosity (not identifiable from this recording)"
+        return out
+    x = torch.tensor([list(inputs.values())], dtype=torch.float32)
+    outside = rectifier.outside_range(x[0])
+    if outside:
+        out["note"] = "not refined (no extrapolation): " + "; ".join(outside)
+        return out
+    with torch.no_grad():
+        out["value"] = float(rectifier(x)[0])
+    out["note"] = "refined by the rectifier"
+    return out
