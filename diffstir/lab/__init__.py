@@ -4,18 +4,23 @@
 along a programme (``stirring_programme``) in the rig, with optional hidden physics (``HiddenPhysics``:
 thixotropy, viscoelasticity, temperature drift; a slipping rod), reads the force through a sensor model
 (``SensorModel``) and synthesises the Archimedes density readings; ``write_lab_recording`` saves the recording in
-the project's format and the truth to ``<recording>.truth.json`` beside it. See docs/virtual-lab.md.
+the project's format and the truth to ``<recording>.truth.json`` beside it. ``synthesise_blend`` stirs two fluids
+together (``Blend``; docs/mixing.md). See docs/virtual-lab.md.
 """
 
+from diffstir.lab.blend import Blend, BlendMaterial, simulate_blend, synthesise_blend
 from diffstir.lab.fluid import Fluid, make_fluid_law
 from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from diffstir.lab.programme import Segment, programme_speed, stirring_programme
 from diffstir.lab.sensor import SensorModel, dead_band, first_order_lag, one_sided, quantise
 from diffstir.lab.synth import (
-    HiddenPhysicsSpec, LabRecording, density_block, synthesise, truth_path, write_lab_recording,
+    HiddenPhysicsSpec, LabRecording, TruthSimulation, density_block, read_truth, simulate_truth, synthesise,
+    truth_path, write_lab_recording,
 )
 
 __all__ = [
+    "Blend",
+    "BlendMaterial",
     "Fluid",
     "HiddenPhysics",
     "HiddenPhysicsSpec",
@@ -24,6 +29,7 @@ __all__ = [
     "SensorModel",
     "TemperatureDrift",
     "Thixotropy",
+    "TruthSimulation",
     "Viscoelasticity",
     "dead_band",
     "density_block",
@@ -32,8 +38,12 @@ __all__ = [
     "one_sided",
     "programme_speed",
     "quantise",
+    "read_truth",
+    "simulate_blend",
+    "simulate_truth",
     "stirring_programme",
     "synthesise",
+    "synthesise_blend",
     "truth_path",
     "write_lab_recording",
 ]

@@ -1,0 +1,153 @@
+"""The apparent viscosity of one constant-speed window: a Newtonian fit through the simulator, read at the
+window's measured effective shear rate.
+
+The window's readings are fitted by the Newtonian law (``diffstir.identify``: a Newtonian ladder for the start,
+a few Gauss-Newton steps). A force sensor keeps a baseline b [N] (offset and slow drift left after the dry-run
+subtraction), which in a short window looks like part of the drag: a 2 mN offset on a 10 mN drag moves η by
+20 %. b is a nuisance parameter of each window with the prior b ~ N(0, q²), q the sensor's resolution [N] (what a
+dry-run subtraction can leave; none for a recording without one), estimated with ln η in a last Gauss-Newton step
+on the fit's Jacobian J and residuals r:
+
+    [ω AᵀA + diag(0, 1/q²)] (Δ ln η, b) = ω Aᵀ r,   A = [J, 1],   ω = N_eff / (N s²),
+
+whose inverse matrix is the covariance; s² = RSS/(N − 1) and N_eff (``identify.uncertainty``) come from the
+Newtonian fit's residuals. Where the reading cannot tell a baseline from the drag, the interval of ln η widens.
+
+The Newtonian-equivalent viscosity η_N is the fluid's apparent viscosity at the window's Metzner-Otto effective
+shear rate γ̇_eff = k_s U / a [1/s] (U the rod's speed, a its radius; k_s measured with the power-law probe of
+``identify.initial.effective_shear_rate``). The simulation runs from the recording's first sample to the
+window's end, so a later window of a programme pays for the stretches before it. Its acoustic time step is that of
+the whole recording's fastest motion, min(cfl Δx / (c + u_max), dt_max) (``recording_config``): the simulator
+picks the step from the simulated span's top speed, and an early, slow window simulated with a longer step than a
+later one reads a few per cent differently from the same fluid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..identify import FitModel, StirProblem, Windows, fit_model
+from ..identify.initial import ViscosityLadder, effective_shear_rate
+from ..identify.uncertainty import Z95, effective_samples
+from ..mpm import SimConfig
+from ..recording import Recording
+from .windows import SpeedWindow
+
+#: Ladder around a previous window's viscosity: a factor 4 each way brackets a change of speed by 2-4 for any
+#: flow index between 0 and 2.
+LADDER_FACTOR = 4.0
+
+
+@dataclass(frozen=True)
+class ViscosityPoint:
+    """The apparent viscosity of one window.
+
+    Attributes:
+        window: where it was measured.
+        speed: the rod's mean speed U [m/s].
+        measured_shear_rate: the window's effective shear rate γ̇_eff [1/s] as measured by the power-law probe.
+        viscosity: the Newtonian-equivalent viscosity η_N [Pa·s].
+        log_std: standard error of ln η_N [1].
+        baseline: the sensor's baseline in the window [N] (a nuisance parameter, module docstring).
+        resolvable: whether the reading's level lies above that of the lowest informative ladder probe (a thinner
+            fluid's drag is set by inertia, not viscosity).
+        loss: the paper's loss of the Newtonian fit, mean |ΔF| [N].
+        evaluations: forward simulations spent.
+    """
+
+    window: SpeedWindow
+    speed: float
+    measured_shear_rate: float
+    viscosity: float
+    log_std: float
+    baseline: float
+    resolvable: bool
+    loss: float
+    evaluations: int
+
+    @property
+    def metzner_otto(self) -> float:
+        """The window's Metzner-Otto constant k_s = γ̇_eff a / U [1] (a: the rod's radius [m])."""
+        return self.measured_shear_rate * self.window.recording.rod.radius / self.speed
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        """95 % interval of η_N [Pa·s], symmetric in ln η."""
+        half = Z95 * self.log_std
+        return self.viscosity * math.exp(-half), self.viscosity * math.exp(half)
+
+    def summary(self) -> dict:
+        return {"window": self.window.label, "start": self.window.start, "end": self.window.end,
+                "speed": self.speed, "measured_shear_rate": self.measured_shear_rate,
+                "metzner_otto": self.metzner_otto, "viscosity": self.viscosity,
+                "viscosity_ci95": list(self.ci95), "log_std": self.log_std, "baseline": self.baseline,
+                "resolvable": self.resolvable,
+                "loss": self.loss, "evaluations": self.evaluations,
+                "units": {"speed": "m/s", "measured_shear_rate": "1/s", "metzner_otto": "1", "viscosity": "Pa s",
+                          "baseline": "N", "loss": "N"}}
+
+
+def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, guess: float | None = None,
+                     iterations: int = 3) -> ViscosityPoint:
+    """The apparent viscosity of ``window`` (see the module docstring) on the simulation ``config`` for a fluid of
+    ``density`` [kg/m³]. ``guess`` [Pa·s] (a neighbouring window's viscosity) shortens the ladder to two probes a
+    factor ``LADDER_FACTOR`` either side; without it the full ladder (one probe per decade) is simulated.
+    ``iterations``: Gauss-Newton iterations of the Newtonian fit."""
+    config = recording_config(config, window.recording)
+    problem = StirProblem(window.recording, config, density, Windows(window.start, window.end, window.end))
+    evaluations = 0
+
+    def count(*_):
+        nonlocal evaluations
+        evaluations += 1
+
+    if guess is None:
+        ladder = ViscosityLadder.simulate(problem, on_evaluation=count)
+    else:
+        ladder = ViscosityLadder.simulate(problem, (guess / LADDER_FACTOR, guess * LADDER_FACTOR), on_evaluation=count)
+    fit = fit_model(problem, FitModel.named("newtonian", eta=ladder.estimate(problem)), max_iterations=iterations)
+    evaluations += fit.evaluations
+    log_eta, log_std, baseline = with_baseline(fit.jacobian[problem.train, 0],
+                                               (problem.measured - fit.predicted)[problem.train], fit.theta[0],
+                                               window.recording.sensor.resolution or 0.0)
+    eta = math.exp(log_eta)
+    rate = effective_shear_rate(problem, ladder, eta, on_evaluation=count)
+    return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,
+                          log_std=log_std, baseline=baseline,
+                          resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))),
+                          loss=fit.loss, evaluations=evaluations)
+
+
+def recording_config(config: SimConfig, recording: Recording) -> SimConfig:
+    """``config`` with ``dt_max`` lowered to the acoustic step cfl Δx / (c + u_max) [s] of the recording's fastest
+    rod speed u_max [m/s] (the acoustic limit of ``StirringSimulator.time_step``)."""
+    u_max = float(np.max(np.linalg.norm(recording.velocity(), axis=1)))
+    return replace(config, dt_max=min(config.dt_max, config.cfl * config.dx / (config.sound_speed + u_max)))
+
+
+def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float,
+                  resolution: float) -> tuple[float, float, float]:
+    """ln η, its standard error and the baseline b [N] from the Gauss-Newton step with the baseline's prior
+    (module docstring): ``jacobian`` d reading / d ln η [N], ``residuals`` measured − fitted [N], ``log_eta`` the
+    fit's ln η, ``resolution`` q [N] (0: no baseline)."""
+    n = residuals.size
+    weight = min(effective_samples(residuals), float(n)) / n / max(float(residuals @ residuals) / max(n - 1, 1),
+                                                                    1e-300)
+    design = np.column_stack([jacobian, np.ones_like(jacobian)])
+    precision = weight * design.T @ design
+    if resolution > 0:
+        precision[1, 1] += 1.0 / resolution**2
+    else:
+        precision[1, :], precision[:, 1], precision[1, 1] = 0.0, 0.0, 1.0  # b held at 0
+    rhs = weight * design.T @ residuals
+    if resolution <= 0:
+        rhs[1] = 0.0
+    try:
+        covariance = np.linalg.inv(precision)
+    except np.linalg.LinAlgError:  # a reading that does not change with η: nothing to estimate
+        return log_eta, math.inf, 0.0
+    step = covariance @ rhs
+    return log_eta + float(step[0]), math.sqrt(max(float(covariance[0, 0]), 0.0)), float(step[1])

@@ -1,0 +1,145 @@
+"""The behaviour class of a fluid from its apparent viscosities η_i ± σ_i (σ_i: standard error of ln η_i) at
+effective shear rates γ̇_i, by two tests at the 95 % level:
+
+1. **Slope.** Weighted least squares of ln η on ln γ̇ with weights 1/σ_i²,
+
+       b = Σ w (x − x̄)(y − ȳ) / Σ w (x − x̄)²,   var b = B² / Σ w (x − x̄)²,   B² = max(1, χ²/(n − 2)),
+
+   where B is the Birge ratio: scatter between the speeds beyond what the per-speed intervals allow (model and
+   discretisation error that differs from speed to speed) widens the interval instead of being ignored. The 95 %
+   interval is b ± 1.96 sqrt(var b). Containing 0: **newtonian**; above 0: **shear_thickening**; below 0: a
+   viscosity that falls with shear rate, then
+2. **Yield stress.** **yield_stress** when the slope's interval contains −1 (the stress does not grow with the
+   shear rate over the speeds: a stress plateau), or, with at least four speeds, when a Herschel-Bulkley flow curve
+   τ = τ_y + k γ̇ⁿ beats the power law τ = K γ̇ⁿ (τ_y = 0, the slope's straight line) in a likelihood-ratio test:
+   Λ = (χ²_PL − χ²_HB) / B_HB² above 2.71, the 95 % point of the ½χ²₀ + ½χ²₁ law of a parameter on its bound
+   (Self and Liang 1987). Otherwise **shear_thinning**.
+
+The confidence is the share of parametric-bootstrap replicates (ln η_i* = ln η_i + B σ_i ε_i, ε ~ N(0, 1)) that
+the same two tests put in the same class: 0.95 for a Newtonian fluid measured without bias, lower for borderline
+ones. B is the Birge ratio of the better description of the points: the Herschel-Bulkley curve's where it was
+fitted (a curved flow curve inflates the straight line's χ² with misfit, not noise), else the line's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from ..identify.uncertainty import Z95
+from ..rheology import FlowCurve, fit_flow_curve
+
+CLASSES = ("newtonian", "shear_thinning", "shear_thickening", "yield_stress")
+#: 95 % point of the ½χ²₀ + ½χ²₁ mixture: the χ²₁ 90 % point.
+YIELD_CRITICAL = float(stats.chi2.ppf(0.90, 1))
+#: Fewest speeds for the Herschel-Bulkley test (three parameters, one degree of freedom left).
+MIN_POINTS_YIELD_TEST = 4
+
+
+@dataclass(frozen=True)
+class Slope:
+    """d ln η / d ln γ̇ [1] by weighted least squares: ``value``, ``std`` (Birge-scaled), ``ci95``, ``intercept``
+    ln η at γ̇ = 1 1/s, ``chi2`` of the line with the given σ, ``birge`` B [1]."""
+
+    value: float
+    std: float
+    intercept: float
+    chi2: float
+    birge: float
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        return self.value - Z95 * self.std, self.value + Z95 * self.std
+
+
+@dataclass(frozen=True)
+class Classification:
+    """The class, its bootstrap ``confidence`` [0-1], the slope, the yield-stress test statistic Λ (None with fewer
+    than four speeds or a viscosity that does not fall) and the Herschel-Bulkley fit's parameters."""
+
+    label: str
+    confidence: float
+    slope: Slope
+    yield_statistic: float | None
+    herschel_bulkley: dict | None
+    replicates: int
+
+    def summary(self) -> dict:
+        return {"class": self.label, "confidence": self.confidence, "slope": self.slope.value,
+                "slope_ci95": list(self.slope.ci95), "slope_std": self.slope.std, "birge_ratio": self.slope.birge,
+                "yield_test": {"statistic": self.yield_statistic, "critical": YIELD_CRITICAL,
+                               "herschel_bulkley": self.herschel_bulkley},
+                "bootstrap_replicates": self.replicates,
+                "method": "slope of ln eta vs ln shear rate (weighted, Birge-scaled, 95 %); yield stress: slope "
+                          "interval holds -1 or Herschel-Bulkley beats the power law (likelihood ratio, 95 %)"}
+
+
+def log_slope(shear_rate: np.ndarray, viscosity: np.ndarray, log_std: np.ndarray) -> Slope:
+    """The weighted slope of ln η [Pa·s] on ln γ̇ [1/s] with standard errors ``log_std`` of ln η (module
+    docstring)."""
+    x, y, w = _checked(shear_rate, viscosity, log_std)
+    xm, ym = np.average(x, weights=w), np.average(y, weights=w)
+    sxx = float(np.sum(w * (x - xm) ** 2))
+    if not sxx > 0:
+        raise ValueError("behaviour: all windows have the same effective shear rate; stir at two speeds or more")
+    b = float(np.sum(w * (x - xm) * (y - ym)) / sxx)
+    a = ym - b * xm
+    chi2 = float(np.sum(w * (y - a - b * x) ** 2))
+    birge = math.sqrt(max(1.0, chi2 / (len(x) - 2))) if len(x) > 2 else 1.0
+    return Slope(value=b, std=birge / math.sqrt(sxx), intercept=float(a), chi2=chi2, birge=birge)
+
+
+def classify(shear_rate, viscosity, log_std, *, replicates: int = 200, seed: int = 0) -> Classification:
+    """The behaviour class of points (γ̇_i [1/s], η_i [Pa·s], σ_i of ln η_i) with its bootstrap confidence from
+    ``replicates`` replicates drawn with ``seed`` (module docstring)."""
+    g = np.asarray(shear_rate, dtype=np.float64)
+    eta = np.asarray(viscosity, dtype=np.float64)
+    sigma = np.asarray(log_std, dtype=np.float64)
+    label, slope, statistic, hb = _decide(g, eta, sigma)
+    scale = min(slope.birge, hb["birge_ratio"]) if hb else slope.birge  # the better description's scatter
+    rng = np.random.default_rng(seed)
+    same = sum(_decide(g, eta * np.exp(scale * sigma * rng.normal(size=g.size)), sigma)[0] == label
+               for _ in range(replicates))
+    confidence = same / replicates if replicates else math.nan
+    return Classification(label, confidence, slope, statistic, hb, replicates)
+
+
+def _decide(g: np.ndarray, eta: np.ndarray, sigma: np.ndarray) -> tuple[str, Slope, float | None, dict | None]:
+    slope = log_slope(g, eta, sigma)
+    lo, hi = slope.ci95
+    if lo <= 0.0 <= hi:
+        return "newtonian", slope, None, None
+    if lo > 0.0:
+        return "shear_thickening", slope, None, None
+    statistic, hb = _yield_test(g, eta, sigma, slope) if g.size >= MIN_POINTS_YIELD_TEST else (None, None)
+    if lo <= -1.0 or (statistic is not None and statistic > YIELD_CRITICAL):
+        return "yield_stress", slope, statistic, hb
+    return "shear_thinning", slope, statistic, hb
+
+
+def _yield_test(g: np.ndarray, eta: np.ndarray, sigma: np.ndarray, slope: Slope) -> tuple[float, dict]:
+    """Λ = (χ²_PL − χ²_HB) / B_HB² for the Herschel-Bulkley law against the power law, in ln η with weights
+    1/σ²; the power law's χ² is the slope's."""
+    w = 1.0 / sigma**2
+    fit = fit_flow_curve("herschel_bulkley", FlowCurve(g, eta * g), weights=w / w.max())
+    chi2 = float(np.sum(w * fit.residuals**2))
+    birge2 = max(1.0, chi2 / (g.size - 3))
+    return max(slope.chi2 - chi2, 0.0) / birge2, {"params": fit.params, "units": fit.units,
+                                                    "ci95": {k: list(v) for k, v in fit.ci95.items()},
+                                                    "birge_ratio": math.sqrt(birge2)}
+
+
+def _checked(shear_rate, viscosity, log_std) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    g, eta, s = (np.asarray(v, dtype=np.float64).ravel() for v in (shear_rate, viscosity, log_std))
+    if not g.size == eta.size == s.size:
+        raise ValueError(f"behaviour: {g.size} shear rates, {eta.size} viscosities and {s.size} standard errors; "
+                         "expected one of each per speed")
+    if g.size < 2:
+        raise ValueError(f"behaviour: {g.size} speed window(s); classifying needs at least two speeds")
+    for name, values, unit in (("shear rate", g, "1/s"), ("viscosity", eta, "Pa s"), ("log_std", s, "1")):
+        if not (np.all(np.isfinite(values)) and np.all(values > 0)):
+            raise ValueError(f"behaviour: every {name} must be finite and > 0 ({unit}); got {values.tolist()}")
+    return np.log(g), np.log(eta), 1.0 / s**2

@@ -1,0 +1,117 @@
+"""Behaviour classification of one fluid stirred at several speeds: windows, apparent viscosities, class, joint
+fit.
+
+Metzner and Otto's effective shear rate is γ̇_eff = k_s U / a with k_s a constant of the stirrer and cup in
+laminar flow. Each window measures its own k_s, and these drift with speed (inertia at the faster speeds, the
+programme's history); the classification uses their geometric mean k̄_s for every window. The slope of ln η
+against ln γ̇ and the Herschel-Bulkley test do not depend on a common factor of the shear rates (it is absorbed by
+the intercept and by the consistency k), only the flow curve's position does.
+
+    result = characterise([load_recording("rec/slow"), load_recording("rec/fast")], config=SimConfig(dim=2))
+    result.summary()["behaviour"]["class"]
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..density import estimate_density
+from ..mpm import SimConfig
+from ..recording import Recording, RecordingError
+from .apparent import ViscosityPoint, window_viscosity
+from .classify import Classification, classify
+from .joint import JointFit, joint_fit
+from .windows import speed_windows
+
+#: Laws fitted to all speeds at once by default.
+JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
+
+
+@dataclass
+class Behaviour:
+    """What :func:`characterise` found; ``summary()`` is the JSON report (SI units)."""
+
+    density: dict
+    points: list[ViscosityPoint]
+    used: list[ViscosityPoint]
+    metzner_otto: float
+    classification: Classification
+    joint: JointFit | None
+    seconds: float
+
+    def shear_rates(self, points: list[ViscosityPoint]) -> np.ndarray:
+        """γ̇_eff = k̄_s U / a [1/s] of ``points`` with the common Metzner-Otto constant k̄_s."""
+        return np.array([self.metzner_otto * p.speed / p.window.recording.rod.radius for p in points])
+
+    def summary(self) -> dict:
+        points = [{**p.summary(), "shear_rate": float(g), "classified": any(p is q for q in self.used)}
+                  for p, g in zip(self.points, self.shear_rates(self.points))]
+        return {"behaviour": self.classification.summary(), "density": self.density,
+                "metzner_otto": {"value": self.metzner_otto, "unit": "1",
+                                 "meaning": "effective shear rate = value * rod speed / rod radius, the geometric "
+                                            "mean of the windows' measured constants"},
+                "points": points,
+                "joint_fit": None if self.joint is None else self.joint.summary(), "seconds": self.seconds}
+
+
+def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
+                 iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 3,
+                 speed_tolerance: float = 0.05, min_window: float = 0.3, replicates: int = 200,
+                 seed: int = 0) -> Behaviour:
+    """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
+
+    Args:
+        config: the simulation the windows are fitted on.
+        density: the fluid's density [kg/m³], used only when no recording has a density block.
+        iterations: Gauss-Newton iterations of each window's Newtonian fit.
+        joint_models: laws fitted to all speeds at once (empty: no joint fit); ``joint_iterations`` their
+            Gauss-Newton iterations.
+        speed_tolerance, min_window: what counts as one speed (``windows.speed_windows``).
+        replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
+    """
+    started = time.perf_counter()
+    if not recordings:
+        raise ValueError("behaviour: no recordings; give recordings=[a,b,...] of one fluid")
+    rho = combined_density(recordings, density)
+    points: list[ViscosityPoint] = []
+    for rec in recordings:
+        guess = None
+        for window in speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window):
+            points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations))
+            guess = points[-1].viscosity
+    used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
+    if len({round(p.speed, 6) for p in used}) < 2:
+        raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves ("
+                             + ", ".join(f"{p.window.label}: {'ok' if any(p is q for q in used) else 'not resolved'}"
+                                         for p in points) + "); stir faster or at more speeds")
+    k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
+    rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
+    result = classify(rates, [p.viscosity for p in used], [p.log_std for p in used], replicates=replicates,
+                      seed=seed)
+    joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations) \
+        if joint_models else None
+    return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
+
+
+def combined_density(recordings: list[Recording], density: float | None) -> dict:
+    """The inverse-variance weighted mean of the recordings' Archimedes densities [kg/m³] with its 95 % interval,
+    or ``density`` [kg/m³] when no recording has a density block."""
+    estimates = [estimate_density(r.density, rod_radius=r.rod.radius,
+                                  **({"force_resolution": r.sensor.resolution} if r.sensor.resolution else {}))
+                 for r in recordings if r.density is not None]
+    if estimates:
+        w = np.array([1.0 / e.std**2 for e in estimates])
+        value = float(np.sum(w * [e.value for e in estimates]) / w.sum())
+        std = float(1.0 / math.sqrt(w.sum()))
+        return {"value": value, "ci95": [value - 1.96 * std, value + 1.96 * std], "unit": "kg/m^3",
+                "source": f"archimedes ({len(estimates)} recordings)"}
+    if density is None:
+        raise RecordingError(f"{recordings[0].source('yaml')}: no recording has a density block, and no density "
+                             "(kg/m^3) was given; set density=... in the config")
+    if not 100.0 <= density <= 25000.0:
+        raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
+    return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}

@@ -1,0 +1,105 @@
+"""The behaviour report: ``report.json`` (SI units), ``report.md`` and the plots ``viscosity_vs_speed.png`` (the
+paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the slope's
+line and the laws fitted to all speeds)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..identify.uncertainty import log_viscosity_interval
+from .pipeline import Behaviour
+
+
+def write_behaviour_report(result: Behaviour, out: str | Path) -> dict[str, Path]:
+    """Write report.json, report.md and the two plots into ``out``; return the paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = result.summary()
+    paths = {"json": out / "report.json", "md": out / "report.md"}
+    paths["json"].write_text(json.dumps(summary, indent=2) + "\n")
+    paths["md"].write_text(markdown(summary))
+    paths.update(plot(result, out))
+    return paths
+
+
+def markdown(summary: dict) -> str:
+    b = summary["behaviour"]
+    lo, hi = b["slope_ci95"]
+    lines = [f"# Behaviour: **{b['class']}** (confidence {b['confidence']:.2f})", "",
+             f"- slope d ln η / d ln γ̇ = {b['slope']:.3f} (95 % CI {lo:.3f} to {hi:.3f}; Birge ratio "
+             f"{b['birge_ratio']:.2f})",
+             f"- density {summary['density']['value']:.1f} kg/m³ ({summary['density']['source']})"]
+    if b["yield_test"]["statistic"] is not None:
+        lines.append(f"- yield-stress test: Λ = {b['yield_test']['statistic']:.2f} (critical "
+                     f"{b['yield_test']['critical']:.2f})")
+    lines += [f"- Metzner-Otto constant k_s = {summary['metzner_otto']['value']:.3g} (γ̇_eff = k_s U / a)", "",
+              "| window | speed [m/s] | γ̇_eff [1/s] (measured) | η [Pa·s] (95 % CI) | classified |",
+              "|---|---|---|---|---|"]
+    for p in summary["points"]:
+        lines.append(f"| {p['window']} | {p['speed']:.4g} | {p['shear_rate']:.3g} ({p['measured_shear_rate']:.3g}) | "
+                     f"{p['viscosity']:.4g} ({p['viscosity_ci95'][0]:.4g}-{p['viscosity_ci95'][1]:.4g}) | "
+                     f"{p['classified']} |")
+    joint = summary["joint_fit"]
+    if joint:
+        lines += ["", f"Joint fit over all speeds, selected by BIC: **{joint['selected']}**", "",
+                  "| law | loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
+        for name, law in joint["laws"].items():
+            params = "; ".join(f"{k} = {v:.4g} [{_fmt(law['ci95'][k][0])}, {_fmt(law['ci95'][k][1])}] "
+                               f"{law['units'][k]}" + ("" if law["identifiable"][k] else " (not identifiable)")
+                               for k, v in law["params"].items())
+            lines.append(f"| {name} | {law['loss']:.4g} | {law['bic']:.1f} | {params} |")
+    return "\n".join(lines) + "\n"
+
+
+def _fmt(value) -> str:
+    return "inf" if value is None else f"{value:.3g}"
+
+
+def plot(result: Behaviour, out: Path) -> dict[str, Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = result.points
+    speed = np.array([p.speed for p in points])
+    eta = np.array([p.viscosity for p in points])
+    lo, hi = np.array([p.ci95 for p in points]).T
+    rate = result.shear_rates(points)
+    cls = result.classification
+    paths = {}
+
+    fig, ax = plt.subplots(figsize=(5.5, 4), constrained_layout=True)
+    order = np.argsort(speed)
+    ax.errorbar(speed[order], 1e3 * eta[order], yerr=1e3 * np.array([eta - lo, hi - eta])[:, order], fmt="o-",
+                capsize=3, label=f"{cls.label} ({cls.confidence:.2f})")
+    ax.set_xlabel("stirring speed [m/s]")
+    ax.set_ylabel("apparent viscosity [mPa·s]")
+    ax.legend(fontsize=8)
+    paths["viscosity_vs_speed"] = out / "viscosity_vs_speed.png"
+    fig.savefig(paths["viscosity_vs_speed"], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4.2), constrained_layout=True)
+    ax.errorbar(rate, eta, yerr=[eta - lo, hi - eta], fmt="ko", capsize=3, label="per speed (95 %)")
+    grid = np.logspace(np.log10(rate.min()) - 0.3, np.log10(rate.max()) + 0.3, 100)
+    ax.loglog(grid, np.exp(cls.slope.intercept) * grid**cls.slope.value, "k:",
+              label=f"slope {cls.slope.value:.2f} [{cls.slope.ci95[0]:.2f}, {cls.slope.ci95[1]:.2f}]")
+    if result.joint is not None:
+        for name, fit in result.joint.fits.items():
+            curve, band_lo, band_hi = log_viscosity_interval(fit.model, fit.theta,
+                                                             result.joint.uncertainty[name].covariance, grid)
+            line, = ax.loglog(grid, curve, label=f"{name} (joint fit)" + (" *" if name == result.joint.selected
+                                                                          else ""))
+            finite = np.isfinite(band_hi)
+            ax.fill_between(grid[finite], band_lo[finite], band_hi[finite], color=line.get_color(), alpha=0.12)
+    ax.set_xlabel("effective shear rate [1/s]")
+    ax.set_ylabel("apparent viscosity [Pa·s]")
+    ax.legend(fontsize=7)
+    paths["flow_curve"] = out / "flow_curve.png"
+    fig.savefig(paths["flow_curve"], dpi=120)
+    plt.close(fig)
+    return paths

@@ -1,0 +1,63 @@
+"""Constant-speed windows of a stirring recording: the stretches where the rod holds one speed.
+
+A sample is steady when the rod's speed s(t) [m/s] would change by less than ``tolerance`` · s over ``min_duration``
+at its current rate, |ds/dt| · T_min < tol · s, so ramps between the speeds of a programme (and the start from
+rest) are left out. Runs of steady samples that last at least ``min_duration`` [s] and move faster than
+``tolerance`` times the recording's top speed (pauses are not stirring) are the windows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..recording import Recording, RecordingError
+
+
+@dataclass(frozen=True)
+class SpeedWindow:
+    """Samples of ``recording`` in (``start``, ``end``] [s], where the rod's axis moves at ``speed`` [m/s] (mean
+    over the window)."""
+
+    recording: Recording
+    start: float
+    end: float
+    speed: float
+
+    @property
+    def label(self) -> str:
+        """``<recording>@<start>-<end>s``, for reports and messages."""
+        name = str(self.recording.path) if self.recording.path else (self.recording.name or "recording")
+        return f"{name}@{self.start:.3g}-{self.end:.3g}s"
+
+
+def speed_windows(recording: Recording, *, tolerance: float = 0.05, min_duration: float = 0.3) -> list[SpeedWindow]:
+    """The constant-speed windows of ``recording`` in time order (see the module docstring).
+
+    Args:
+        tolerance: relative speed change [1] that still counts as one speed (the arm's speed regulation).
+        min_duration: shortest window [s].
+
+    Raises:
+        RecordingError: no window (naming the recording's time column and the speeds it holds).
+    """
+    if not 0 < tolerance < 1:
+        raise ValueError(f"behaviour.speed_tolerance = {tolerance}; expected a relative change in (0, 1)")
+    if not min_duration > 0:
+        raise ValueError(f"behaviour.min_window = {min_duration}; expected a positive duration in s")
+    t = recording.t
+    speed = np.linalg.norm(recording.velocity(), axis=1)
+    rate = np.abs(np.gradient(speed, t))
+    steady = (rate * min_duration < tolerance * speed) & (speed > tolerance * speed.max())
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(np.int8), [0]])))
+    windows = []
+    for first, stop in zip(edges[::2], edges[1::2]):
+        start, end = float(t[max(first - 1, 0)]), float(t[stop - 1])
+        if end - start >= min_duration:
+            windows.append(SpeedWindow(recording, start, end, float(np.mean(speed[first:stop]))))
+    if not windows:
+        raise RecordingError(f"{recording.source('csv')}: columns 'x', 'y' hold no stretch of {min_duration} s at "
+                             f"one speed (within {tolerance:.0%}); speeds range {speed.min():.3g}-"
+                             f"{speed.max():.3g} m/s")
+    return windows

@@ -1,0 +1,140 @@
+"""The apparent viscosity of a fluid being mixed, over time, from consecutive windows of one recording.
+
+The steady-speed stretches of the recording (``behaviour.speed_windows``) are cut into windows of ``window``
+seconds; each window's apparent viscosity η_i ± σ_i (σ_i of ln η_i) comes from a Newtonian fit through the
+simulator (``behaviour.window_viscosity``), simulated from the recording's start with a homogeneous fluid. The
+time course is summarised by an exponential approach to a plateau, fitted by weighted least squares in ln η at the
+windows' mid-times t_i,
+
+    ln η(t) = ln η_∞ + Δ exp(−(t − t_0)/τ),
+
+whose covariance is scaled by the Birge ratio as in ``behaviour.classify``, with τ between half the windows'
+spacing and the recording's span (what the windows can resolve). The fluid is homogeneous, as far as
+the viscosity tells, once the excess has fallen below the plateau's 95 % half-width,
+t_h = t_0 + τ ln(|Δ| / (1.96 σ(ln η_∞))) (t_0 when it starts there). A course the approach cannot describe (flat,
+Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its plateau, t_h = t_0 and τ unknown;
+the report's time course shows whether that is a plateau or a drift.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize
+
+from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows, window_viscosity
+from ..identify.uncertainty import Z95
+from ..mpm import SimConfig
+from ..recording import Recording
+
+
+def time_windows(recording: Recording, window: float) -> list[SpeedWindow]:
+    """Consecutive windows of ``window`` [s] (the last one of a stretch may be up to 1.5 times longer) over the
+    recording's steady-speed stretches."""
+    if not window > 0:
+        raise ValueError(f"mixing.window = {window}; expected a positive duration in s")
+    out = []
+    for stretch in speed_windows(recording, min_duration=window):
+        count = max(1, int((stretch.end - stretch.start) / window))
+        edges = np.linspace(stretch.start, stretch.end, count + 1)
+        out += [SpeedWindow(recording, float(a), float(b), stretch.speed) for a, b in zip(edges[:-1], edges[1:])]
+    return out
+
+
+@dataclass(frozen=True)
+class Approach:
+    """The fitted approach ln η(t) = ln η_∞ + Δ exp(−(t − t_0)/τ): ``plateau`` η_∞ [Pa·s] with ``plateau_ci95``,
+    ``excess`` Δ [1], ``time_constant`` τ [s] with ``time_constant_ci95``, ``start`` t_0 [s] and the
+    ``homogeneity_time`` t_h [s] (module docstring)."""
+
+    plateau: float
+    plateau_ci95: tuple[float, float]
+    excess: float
+    time_constant: float
+    time_constant_ci95: tuple[float, float]
+    start: float
+    homogeneity_time: float
+    birge: float
+
+    def curve(self, t: np.ndarray) -> np.ndarray:
+        """η(t) [Pa·s] at times ``t`` [s]."""
+        if not math.isfinite(self.time_constant):
+            return np.full(np.shape(t), self.plateau)
+        return self.plateau * np.exp(self.excess * np.exp(-(np.asarray(t) - self.start) / self.time_constant))
+
+    def summary(self) -> dict:
+        finite = math.isfinite(self.time_constant)
+        return {"plateau": self.plateau, "plateau_ci95": list(self.plateau_ci95), "excess_log": self.excess,
+                "time_constant": self.time_constant if finite else None,
+                "time_constant_ci95": list(self.time_constant_ci95) if finite else None,
+                "start": self.start, "homogeneity_time": self.homogeneity_time, "birge_ratio": self.birge,
+                "units": {"plateau": "Pa s", "time_constant": "s", "start": "s", "homogeneity_time": "s"}}
+
+
+def fit_approach(times, viscosity, log_std) -> Approach:
+    """The exponential approach (module docstring) to viscosities ``viscosity`` [Pa·s] with standard errors
+    ``log_std`` of ln η at ``times`` [s]; needs four windows or more (three parameters and one degree of
+    freedom)."""
+    t, eta, s = (np.asarray(v, dtype=np.float64) for v in (times, viscosity, log_std))
+    if t.size < 4:
+        raise ValueError(f"mixing: {t.size} windows; the time course needs at least 4 (shorten mixing.window)")
+    if not (np.all(eta > 0) and np.all(np.isfinite(s)) and np.all(s > 0)):
+        raise ValueError("mixing: every window's viscosity (Pa s) and its standard error must be finite and > 0")
+    y, t0, span = np.log(eta), float(t[0]), float(t[-1] - t[0])
+
+    def model(tt, a, b, log_tau):
+        return a + b * np.exp(-(tt - t0) / np.exp(log_tau))
+
+    # time constants the windows resolve: from half their spacing to the recording's span
+    lo, hi = math.log(0.5 * float(np.min(np.diff(t)))), math.log(span)
+    starts = [(y[-1], y[0] - y[-1], math.log(span * f)) for f in (0.1, 0.3, 0.9)]
+    best = None
+    for p0 in starts:
+        try:
+            with warnings.catch_warnings(), np.errstate(over="ignore"):  # a degenerate fit is handled below
+                warnings.simplefilter("ignore", optimize.OptimizeWarning)
+                p, cov = optimize.curve_fit(model, t, y, p0=p0, sigma=s, absolute_sigma=True, maxfev=2000,
+                                            bounds=([-np.inf, -np.inf, lo], [np.inf, np.inf, hi]))
+        except (RuntimeError, ValueError):
+            continue
+        chi2 = float(np.sum(((y - model(t, *p)) / s) ** 2))
+        if best is None or chi2 < best[2]:
+            best = (p, cov, chi2)
+    if best is None or not np.all(np.isfinite(best[1])) or not lo + 1e-6 < best[0][2] < hi - 1e-6:  # on a bound
+        return _constant(t, y, s)
+    p, cov, chi2 = best
+    birge2 = max(1.0, chi2 / (t.size - 3))
+    se = np.sqrt(np.diag(cov) * birge2)
+    a, b, log_tau = p
+    tau = math.exp(log_tau)
+    half = Z95 * se[0]
+    ratio = abs(b) / half if half > 0 else math.inf
+    return Approach(plateau=math.exp(a), plateau_ci95=(math.exp(a - half), math.exp(a + half)), excess=float(b),
+                    time_constant=tau, time_constant_ci95=(tau * math.exp(-Z95 * se[2]), tau * math.exp(Z95 * se[2])),
+                    start=t0, homogeneity_time=t0 + (tau * math.log(ratio) if ratio > 1 else 0.0),
+                    birge=math.sqrt(birge2))
+
+
+def _constant(t: np.ndarray, y: np.ndarray, s: np.ndarray) -> Approach:
+    """No resolvable approach (a flat course, or Δ and τ not separable): the weighted mean of ln η as the plateau,
+    homogeneous from the first window, τ unknown (nan)."""
+    w = 1.0 / s**2
+    mean = float(np.sum(w * y) / w.sum())
+    birge = math.sqrt(max(1.0, float(np.sum(w * (y - mean) ** 2)) / (t.size - 1)))
+    half = Z95 * birge / math.sqrt(w.sum())
+    return Approach(plateau=math.exp(mean), plateau_ci95=(math.exp(mean - half), math.exp(mean + half)), excess=0.0,
+                    time_constant=math.nan, time_constant_ci95=(math.nan, math.nan), start=float(t[0]),
+                    homogeneity_time=float(t[0]), birge=birge)
+
+
+def track_viscosity(recording: Recording, config: SimConfig, density: float, window: float, *,
+                    iterations: int = 3) -> list[ViscosityPoint]:
+    """The apparent viscosity of each ``window``-second window of ``recording`` (module docstring)."""
+    points: list[ViscosityPoint] = []
+    for w in time_windows(recording, window):
+        points.append(window_viscosity(w, config, density, guess=points[-1].viscosity if points else None,
+                                       iterations=iterations))
+    return points
