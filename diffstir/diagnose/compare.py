@@ -1,0 +1,220 @@
+"""Fitting every candidate extension and comparing them fairly.
+
+Sensor candidates (and ``none``) are fitted without simulation on the linearised base reading; physics candidates
+start from the base law with the extension at a typical strength, take a forward-difference Jacobian (k + 1
+simulations) and a few trust-region Gauss-Newton steps with Broyden updates (``diffstir.identify.fit_model``, soft-L1
+cost at the noise scale, as the identification). Each fit gets the Laplace covariance of its parameters with the
+effective sample size (``diffstir.identify.uncertainty``).
+
+Comparison by BIC with one effective sample size N_eff for all candidates (that of the candidate with the smallest
+RSS, whose residual is closest to the noise): BIC = N_eff ln(RSS/N) + k ln N_eff, k counting the viscosity scale
+and the extension's parameters, so an extra parameter must buy ln N_eff (≈ 5) of fit. Verdict, on the Kass and
+Raftery (1995) scale of ΔBIC ≈ 2 ln(Bayes factor):
+
+* ``none`` when the base law's residual passes for noise (``base.residual_test``: not both larger than the noise
+  and structured), whatever the BIC: a real but immaterial effect (a millisecond of lag that a long, precise
+  recording resolves) is not worth naming;
+* ``none`` unless the best candidate beats the base law by ΔBIC > ``EVIDENCE`` = 10 ("very strong") and
+  explains most of the mismatch: (RSS_none − RSS_best) / (RSS_none − N σ²) ≥ ``EXPLAINED`` = 1/2, the share of the
+  residual's variance above the noise that the extension removes;
+* ``ambiguous`` when another candidate is within ``DISTINCT`` = 6 of the best ("strong" evidence needed to
+  tell two effects apart);
+* otherwise the best candidate.
+
+The score of a candidate is BIC − BIC(none) (negative: the data favour the extension); its probability is the BIC
+weight exp(−BIC/2) / Σ exp(−BIC/2) over the candidates.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+
+from ..identify.optimise import Readings, fit_model
+from ..identify.selection import bic
+from ..identify.uncertainty import effective_samples, laplace
+from .base import residual_test
+from .candidates import (
+    PHYSICS_CANDIDATES, SCALE, SENSOR_CANDIDATES, YIELD_SUMMARY, CachedReplay, Context, Parametrisation,
+    PhysicsModel, SensorCandidate, scaled_law, yield_model,
+)
+
+EVIDENCE = 10.0  # ΔBIC against the base law for an effect to be named
+DISTINCT = 6.0   # ΔBIC between the best two for them to be told apart
+EXPLAINED = 0.5  # share of the residual variance above the noise that the named effect must remove
+#: |ln s| up to which the linearised base reading p0 (1 + ln s) of a Newtonian drag stays within 2 % of p0 s.
+LINEAR_RANGE = 0.2
+
+NONE = SensorCandidate("none", (), lambda p, ctx, v: p, lambda ctx: [{}], "nothing (the residual is noise)")
+
+
+@dataclass
+class CandidateFit:
+    """One candidate fitted to the recording.
+
+    Attributes:
+        name, kind: the candidate (``sensor``, ``physics``) .
+        summary: what it models, in words.
+        params, units, ci95: fitted values (SI), units, 95 % intervals.
+        law: the fluid's law after the fit (name and SI parameters).
+        predicted: readings [N] at the compared samples.
+        loss: mean |measured − predicted| [N]; rss: Σ (measured − predicted)² [N²].
+        size: fitted parameters (viscosity scale included).
+        simulations, seconds: cost of the fit.
+        note: why it was not fitted (None when it was).
+        warning: why the fit is less trustworthy than its interval says (None when it is not).
+    """
+
+    name: str
+    kind: str
+    summary: str
+    params: dict = field(default_factory=dict)
+    units: dict = field(default_factory=dict)
+    ci95: dict = field(default_factory=dict)
+    law: dict = field(default_factory=dict)
+    predicted: np.ndarray | None = None
+    loss: float = math.nan
+    rss: float = math.nan
+    size: int = 0
+    simulations: int = 0
+    seconds: float = 0.0
+    note: str | None = None
+    warning: str | None = None
+
+
+def _law_after(law, values: dict) -> dict:
+    scaled = scaled_law(law, values["viscosity_scale"])
+    return {"name": scaled.name, "params": scaled.parameters_si(), "units": dict(scaled.units)}
+
+
+def _finish(fit: CandidateFit, model, theta: np.ndarray, jacobian: np.ndarray, ctx: Context) -> CandidateFit:
+    residual = ctx.measured - fit.predicted
+    unc = laplace(model, theta, jacobian, -residual)  # predicted − measured, as the identification
+    fit.ci95 = {k: [lo if math.isfinite(lo) else None, hi if math.isfinite(hi) else None]
+                for k, (lo, hi) in unc.ci95.items()}
+    fit.loss, fit.rss = float(np.mean(np.abs(residual))), float(residual @ residual)
+    fit.size = model.size
+    return fit
+
+
+def fit_sensor(candidate: SensorCandidate, ctx: Context) -> CandidateFit:
+    """Fit a sensor candidate (or ``none``) and the viscosity scale on the linearised base reading."""
+    started = time.perf_counter()
+    fit = CandidateFit(candidate.name, "sensor" if candidate.params else "none", candidate.summary)
+    reason = candidate.applies(ctx)
+    if reason is not None:
+        fit.note = reason
+        return fit
+    par = Parametrisation((SCALE,) + candidate.params)
+
+    def predict(theta):
+        values = par.values_of(theta)
+        p = ctx.base_reading + ctx.scale_column * math.log(values["viscosity_scale"])
+        return candidate.reading(p, ctx, values)
+
+    best = None
+    for start in candidate.starts(ctx):
+        theta0 = np.clip(par.theta_of({"viscosity_scale": 1.0, **start}), par.lower, par.upper)
+        sol = optimize.least_squares(lambda t: predict(t) - ctx.measured, theta0, bounds=(par.lower, par.upper),
+                                     method="trf", loss="soft_l1", f_scale=ctx.noise, x_scale="jac")
+        if best is None or sol.cost < best.cost:
+            best = sol
+    theta = best.x
+    steps = 1e-6 * np.maximum(np.abs(theta), 1e-2)
+    jacobian = np.stack([(predict(theta + h * e) - predict(theta - h * e)) / (2 * h)
+                         for h, e in zip(steps, np.eye(theta.size))], axis=1)
+    values = par.values_of(theta)
+    fit.params, fit.units, fit.predicted = values, par.units, predict(theta)
+    fit.law = _law_after(ctx.law, values)
+    fit.seconds = time.perf_counter() - started
+    if abs(math.log(values["viscosity_scale"])) > LINEAR_RANGE:
+        fit.warning = (f"the viscosity scale {values['viscosity_scale']:.3g} is outside the linearised range "
+                       f"(|ln s| ≤ {LINEAR_RANGE}); refit the law (identification) and diagnose again")
+    return _finish(fit, par, theta, jacobian, ctx)
+
+
+def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int) -> CandidateFit:
+    """Fit a physics candidate (``PHYSICS_CANDIDATES`` or ``yield_stress``) through the simulator."""
+    started = time.perf_counter()
+    if name == "yield_stress":
+        model = yield_model(ctx.law, ctx)
+        fit = CandidateFit(name, "physics", YIELD_SUMMARY)
+        if model is None:
+            fit.note = f"the base law ({ctx.law.name}) already has a yield stress"
+            return fit
+    else:
+        candidate = PHYSICS_CANDIDATES[name]
+        model = PhysicsModel(candidate, ctx.law, ctx)
+        fit = CandidateFit(name, "physics", candidate.summary)
+    replay = CachedReplay(problem, model)
+    jacobian0 = Readings(replay, model).jacobian(model.theta())
+    result = fit_model(replay, model, max_iterations=max_iterations, initial_jacobian=jacobian0)
+    values = model.params_si()
+    fit.params, fit.units, fit.predicted = values, dict(model.units), result.predicted
+    if name == "yield_stress":
+        fit.law = {"name": model.name, "params": values, "units": dict(model.units)}
+    else:
+        fit.law = _law_after(ctx.law, values)
+    fit.simulations, fit.seconds = replay.simulations, time.perf_counter() - started
+    return _finish(fit, model, result.theta, result.jacobian, ctx)
+
+
+def fit_candidates(names: list[str], ctx: Context, problem, *, max_iterations: int = 3,
+                   on_fit=None) -> dict[str, CandidateFit]:
+    """Fit every named candidate; ``on_fit(fit)`` is called after each."""
+    fits = {}
+    for name in names:
+        if name == "none":
+            fit = fit_sensor(NONE, ctx)
+        elif name in SENSOR_CANDIDATES:
+            fit = fit_sensor(SENSOR_CANDIDATES[name], ctx)
+        else:
+            fit = fit_physics(name, ctx, problem, max_iterations=max_iterations)
+        fits[name] = fit
+        if on_fit is not None:
+            on_fit(fit)
+    return fits
+
+
+def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> tuple[list[dict], str, dict]:
+    """The ranking (best first), the verdict and the evidence behind it (see the module docstring), for fits to
+    the readings ``measured`` [N] of noise level ``noise`` [N]."""
+    fitted = {k: f for k, f in fits.items() if f.note is None}
+    best_rss = min(fitted, key=lambda k: fitted[k].rss)
+    n_eff = effective_samples(measured - fitted[best_rss].predicted)
+    bics = {k: bic(measured - f.predicted, f.size, n_eff) for k, f in fitted.items()}
+    lowest = min(bics.values())
+    weights = {k: math.exp(-(b - lowest) / 2) for k, b in bics.items()}
+    total = sum(weights.values())
+    order = sorted(fitted, key=lambda k: bics[k])
+    none_loss = fitted["none"].loss
+    ranking = [{"effect": k, "score": bics[k] - bics["none"], "bic": bics[k], "probability": weights[k] / total,
+                "params": fitted[k].params, "units": fitted[k].units, "ci95": fitted[k].ci95, "law": fitted[k].law,
+                "loss_before": none_loss, "loss_after": fitted[k].loss, "parameters": fitted[k].size,
+                "simulations": fitted[k].simulations, "seconds": fitted[k].seconds, "warning": fitted[k].warning}
+               for k in order]
+    ranking += [{"effect": k, "score": None, "note": f.note} for k, f in fits.items() if f.note is not None]
+    best = order[0]
+    runner = next((k for k in order[1:] if k != "none"), None)
+    gain = bics["none"] - bics[best]
+    separation = bics[runner] - bics[best] if runner is not None else math.inf
+    test = residual_test(measured - fitted["none"].predicted, noise)
+    excess = fitted["none"].rss - measured.size * noise**2
+    explained = (fitted["none"].rss - fitted[best].rss) / excess if excess > 0 else 0.0
+    if not test["needed"] or best == "none" or gain <= EVIDENCE or explained < EXPLAINED:
+        verdict = "none"
+    elif separation < DISTINCT:
+        verdict = "ambiguous"
+    else:
+        verdict = best
+    evidence = {"best": best, "runner_up": runner, "gain_over_none": gain, "separation": separation,
+                "explained": explained, "effective_samples": n_eff, "residual_test": test,
+                "thresholds": {"evidence": EVIDENCE, "distinct": DISTINCT, "explained": EXPLAINED},
+                "tied": [k for k in order if k != "none" and bics[k] - bics[best] < DISTINCT]
+                if verdict == "ambiguous" else []}
+    return ranking, verdict, evidence
+

@@ -1,0 +1,164 @@
+"""Diagnose a fit: locate the mismatch, fit every candidate extension, name the missing physics, and show the fit
+improve.
+
+    diag = diagnose(recording, identification, config=SimConfig(dim=2, dx=0.005, sound_speed=1.0))
+    diag.verdict, diag.sentence
+    write_diagnosis(diag, "out/")            # diagnosis.json, diagnosis.md, plots
+
+``identification`` is an :class:`~diffstir.identify.Identification` or a ``diffstir-fit`` report.json; the
+selected law is the base. The whole recording is compared (or its first ``window`` seconds), all samples fitted:
+the stops and reversals that tell look-alike effects apart must be inside.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..identify import Identification, StirProblem, Windows
+from ..identify.initial import characteristic_shear_rate
+from ..mpm import SimConfig
+from ..recording import Recording
+from .base import BaseFit, base_from_identification, law_from_report, noise_level, simulate_base
+from .candidates import CANDIDATES, Context, accel_reading, check_names
+from .compare import CandidateFit, fit_candidates, rank
+from .locate import locate
+
+#: Confidence words for the separation ΔBIC between the verdict and the runner-up (Kass and Raftery 1995).
+SURE = ((10.0, "very sure"), (6.0, "fairly sure"))
+
+
+@dataclass
+class Diagnosis:
+    """What :func:`diagnose` found; ``summary()`` is diagnosis.json."""
+
+    recording: Recording
+    problem: StirProblem
+    base: BaseFit
+    location: dict
+    fits: dict[str, CandidateFit]
+    ranking: list[dict]
+    verdict: str
+    evidence: dict
+    seconds: float
+
+    @property
+    def refit(self) -> CandidateFit:
+        """The model shown as the improved fit: the verdict's, the best candidate when ambiguous, else none."""
+        if self.verdict == "ambiguous":
+            return self.fits[self.evidence["best"]]
+        return self.fits[self.verdict]
+
+    @property
+    def sentence(self) -> str:
+        """What was left out, how strong it is and how sure the diagnosis is, in one sentence."""
+        ev, none = self.evidence, self.fits["none"]
+        if self.verdict == "none":
+            test = ev["residual_test"]
+            if not test["needed"]:
+                return (f"Nothing was left out that matters: the residual passes for the noise (RSS/(N σ²) = "
+                        f"{test['excess']:.2f}, limit {test['excess_limit']:.2f}; lag-1 autocorrelation "
+                        f"{test['autocorrelation']:.2f}, limit {test['autocorrelation_limit']:.2f}).")
+            return (f"Something is left out that no candidate explains: the residual is "
+                    f"{self.location['rms_over_noise']:.2g} times the noise, but the best extension ({ev['best']}) "
+                    f"improves the BIC by {ev['gain_over_none']:.1f} and removes {ev['explained']:.0%} of the "
+                    f"mismatch (an effect is named above {ev['thresholds']['evidence']:g} and "
+                    f"{ev['thresholds']['explained']:.0%}).")
+        if self.verdict == "ambiguous":
+            tied = " and ".join(ev["tied"])
+            return (f"Something was left out (ΔBIC {ev['gain_over_none']:.0f} against no extension), but {tied} "
+                    f"explain it about equally well (ΔBIC {ev['separation']:.1f} < {ev['thresholds']['distinct']:g}): "
+                    "this recording cannot tell them apart; a programme with stops and reversals may.")
+        fit = self.fits[self.verdict]
+        strength = float(np.sqrt(np.mean((fit.predicted - none.predicted) ** 2)) /
+                         np.sqrt(np.mean(self.problem.measured ** 2)))
+        sure = next((w for limit, w in SURE if ev["separation"] >= limit), "unsure")
+        params = "; ".join(_param(k, v, fit.units[k], fit.ci95.get(k)) for k, v in fit.params.items()
+                           if k != "viscosity_scale")
+        caveat = f" Caveat: {fit.warning}." if fit.warning else ""
+        return (f"Left out: {fit.summary} ({params}); it changes the reading by {strength:.0%} of its rms and "
+                f"modelling it cuts the loss from {none.loss:.3g} N to {fit.loss:.3g} N. The diagnosis is {sure}: "
+                f"ΔBIC {ev['gain_over_none']:.0f} against no extension and {ev['separation']:.0f} against the "
+                f"runner-up ({ev['runner_up']}).{caveat}")
+
+    def summary(self) -> dict:
+        """diagnosis.json: verdict, sentence, ranking, evidence, location, base and refit (SI units)."""
+        location = {k: v for k, v in self.location.items() if not k.startswith("_")}
+        refit = self.refit
+        return {
+            "recording": str(self.recording.path) if self.recording.path else self.recording.name,
+            "verdict": self.verdict, "sentence": self.sentence, "ranking": self.ranking, "evidence": self.evidence,
+            "location": location,
+            "base": {"law": self.base.law.name, "params": self.base.params, "units": dict(self.base.law.units),
+                     "density": self.base.density, "source": self.base.source,
+                     "loss": float(np.mean(np.abs(self.problem.measured - self.base.predicted)))},
+            "refit": {"effect": refit.name, "loss_before": self.fits["none"].loss, "loss_after": refit.loss,
+                      "fluid_before": {"name": self.base.law.name, "params": self.base.params},
+                      "fluid_after": refit.law},
+            "window": {"start": self.problem.windows.start, "end": self.problem.windows.end, "unit": "s"},
+            "simulation": {"dim": self.problem.config.dim, "dx": self.problem.config.dx,
+                           "sound_speed": self.problem.config.sound_speed},
+            "simulations": self.base.simulations + sum(f.simulations for f in self.fits.values()),
+            "seconds": self.seconds,
+        }
+
+
+def _param(name: str, value: float, unit: str, ci) -> str:
+    unit = "" if unit == "1" else f" {unit}"
+    if ci and ci[0] is not None and ci[1] is not None:
+        return f"{name} = {value:.3g}{unit}, 95 % CI {ci[0]:.3g} to {ci[1]:.3g}"
+    return f"{name} = {value:.3g}{unit}"
+
+
+def diagnose(recording: Recording, identification: Identification | str | Path, *, config: SimConfig,
+             window: float | None = None, candidates=CANDIDATES, max_iterations: int = 3,
+             rebuild_time: float = 1.0, progress: bool = False) -> Diagnosis:
+    """Locate the mismatch between ``recording`` and its identification, fit every candidate extension, and name
+    the missing physics (see the module docstring and ``compare``).
+
+    Args:
+        recording: the recording.
+        identification: an ``Identification`` or the path of a ``diffstir-fit`` report.json (or its directory).
+        config: the simulator's resolution for the physics candidates (the coarse 2-D slice is the cheap choice).
+        window: compare the first ``window`` seconds [s] (None: the whole recording).
+        candidates: names from ``CANDIDATES``; ``none`` is always added.
+        max_iterations: Gauss-Newton evaluations per physics candidate after its finite-difference Jacobian.
+        rebuild_time: t_r [s] of the thixotropy candidate.
+        progress: print one line per fitted candidate.
+    """
+    started = time.perf_counter()
+    names = check_names(candidates)
+    if not (isinstance(rebuild_time, (int, float)) and math.isfinite(rebuild_time) and rebuild_time > 0):
+        raise ValueError(f"diagnose.rebuild_time = {rebuild_time!r}; expected a positive time in s")
+    if isinstance(identification, Identification):
+        density = identification.density["value"]
+    else:
+        law, density, source = law_from_report(identification)
+    problem = StirProblem(recording, config, density, Windows.of(recording, window, 0.0))
+    if isinstance(identification, Identification):
+        base = base_from_identification(identification, problem)
+    else:
+        base = simulate_base(problem, law, density, source)
+    noise = noise_level(problem.measured, recording.sensor.resolution)
+    ctx = Context(times=problem.times, measured=problem.measured, base_reading=base.predicted,
+                  scale_column=base.scale_column,
+                  accel_reading=accel_reading(problem.times, problem.velocity, recording.sensor), noise=noise,
+                  shear_rate=characteristic_shear_rate(problem), duration=problem.trajectory.duration,
+                  rebuild_time=float(rebuild_time), law=base.law)
+    xy = np.stack([recording.x[problem.index], recording.y[problem.index]], axis=-1)
+    location = locate(problem.times, xy, problem.velocity, problem.measured, base.predicted, noise,
+                      problem.rig.rod.radius)
+
+    def report(fit: CandidateFit) -> None:
+        if progress:
+            state = fit.note or f"loss {fit.loss:.4g} N, {fit.simulations} simulations, {fit.seconds:.0f} s"
+            print(f"diagnose {fit.name}: {state}", flush=True)
+
+    fits = fit_candidates(names, ctx, problem, max_iterations=max_iterations, on_fit=report)
+    ranking, verdict, evidence = rank(fits, problem.measured, noise)
+    return Diagnosis(recording=recording, problem=problem, base=base, location=location, fits=fits,
+                     ranking=ranking, verdict=verdict, evidence=evidence, seconds=time.perf_counter() - started)

@@ -1,0 +1,231 @@
+"""Diagnosis: the locating statistics against closed forms, the sensor candidates on readings with a known
+concealed effect (no simulation), the verdict's false-alarm guard, and the whole pipeline on a small simulated
+recording."""
+
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
+from diffstir.diagnose.base import base_from_identification, law_from_report
+from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, lag, scaled_law
+from diffstir.diagnose.compare import NONE, fit_sensor, rank
+from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
+from diffstir.identify.problem import rig_from_recording
+from diffstir.lab import first_order_lag, stirring_programme
+from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.recording import CupGeometry, Recording, RodGeometry, SensorSpec, sensor_reading_np
+from diffstir.rheology import Newtonian, make_law
+
+FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # as tests/test_identify.py: coarse, but the same model
+NOISE = 0.002  # N
+RATE = 100.0   # Hz
+SEEDS = 5      # noise draws per sensor effect
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """One torch thread: the machine's cores are shared, and two threads run these small grids slower."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def programme(speeds=(0.06, 0.0, -0.06), durations=(0.5, 0.3, 0.5)):
+    return stirring_programme([{"speed": s, "duration": d} for s, d in zip(speeds, durations)], radius=0.015,
+                              ramp_time=0.1, sample_rate=RATE)
+
+
+def synthetic_context(effect=None, seed=0, **truth):
+    """A context whose base reading is a stirring-like force (a circle's component plus a speed-change spike) and
+    whose measurement is that reading, with the Newtonian viscosity 10 % higher, through the ``effect``'s sensor
+    model with ``truth`` parameters, plus white noise."""
+    traj = programme()
+    t, xy = traj.t, traj.xy
+    velocity = np.gradient(xy, t, axis=0)
+    accel = np.gradient(velocity, t, axis=0)
+    accel_y = accel[:, 1]
+    p0 = -0.05 / 0.06 * velocity[:, 1]  # drag opposite to the motion, N: 0.05 N at 0.06 m/s
+    column = p0.copy()  # a Newtonian reading is proportional to η: d p / d ln η = p
+    ctx = Context(times=t, measured=np.zeros_like(t), base_reading=p0, scale_column=column,
+                  accel_reading=accel_y, noise=NOISE, shear_rate=4.8, duration=float(t[-1]), rebuild_time=1.0,
+                  law=Newtonian(eta=1.0))
+    true_reading = p0 * 1.1
+    if effect is not None:
+        true_reading = SENSOR_CANDIDATES[effect].reading(true_reading, ctx, truth)
+    ctx.measured = true_reading + np.random.default_rng(seed).normal(0.0, NOISE, t.size)
+    return ctx
+
+
+def test_lag_is_the_lab_first_order_lag_and_its_step_response():
+    t = np.arange(200) / RATE
+    x = np.where(t > 0.5, 1.0, 0.0)
+    np.testing.assert_allclose(lag(x, t, 0.1), first_order_lag(x, 1 / RATE, 0.1), atol=1e-12)
+    # 63 % of a step after one time constant, to within one sample's worth of the exponential
+    k = np.searchsorted(t, 0.6)
+    assert lag(x, t, 0.1)[k] == pytest.approx(1 - math.exp(-1), abs=1 / (RATE * 0.1))
+
+
+def test_locate_labels_the_programme_and_measures_lag_and_harmonics():
+    traj = programme()
+    velocity = np.gradient(traj.xy, traj.t, axis=0)
+    kin = kinematics(traj.t, traj.xy, velocity, rod_radius=0.0125)
+    label, transient = phases(traj.t, kin, 0.0125)
+    assert transient == pytest.approx(2 * 0.0125 / 0.06, rel=0.02)
+    at = lambda s: label[np.searchsorted(traj.t, s)]  # noqa: E731
+    assert at(0.2) == "start-up" and at(0.45) == "steady" and at(0.7) == "stop" and at(0.9) == "reversal"
+    assert at(0.55) == "speed change"  # the ramp down before the stop
+    phase = kin["phase"]
+    second = np.cos(2 * phase)
+    assert harmonic_shares(second, phase)["harmonic_2"] == pytest.approx(1.0, abs=1e-6)
+    t = np.arange(400) / RATE
+    simulated = np.sin(2 * np.pi * 1.3 * t)
+    measured = np.sin(2 * np.pi * 1.3 * (t - 0.043))
+    assert reading_lag(t, measured, simulated, 0.15) == pytest.approx(0.043, abs=0.2 / RATE)
+
+
+@pytest.mark.parametrize("effect, truth", [("sensor_lag", {"lag_time": 0.08}),
+                                           ("sensor_deadband", {"dead_band": 0.01}),
+                                           ("sensor_drift", {"offset": 0.004, "drift_rate": 0.01}),
+                                           ("inertia", {"moving_mass": 0.05})])
+def test_sensor_candidates_recover_their_effect_and_win(effect, truth):
+    # the base reading enters linearised in ln s, p0 (1 + ln s), so the measured 1.1 p0 is s = e^0.1
+    expected = {"viscosity_scale": math.exp(0.1), **truth}
+    covered = {key: 0 for key in expected}
+    for seed in range(SEEDS):
+        ctx = synthetic_context(effect, seed=seed, **truth)
+        fits = {name: fit_sensor(c, ctx) for name, c in SENSOR_CANDIDATES.items()}
+        fits["none"] = fit_sensor(NONE, ctx)
+        assert rank(fits, ctx.measured, NOISE)[1] == effect
+        fit = fits[effect]
+        for key, value in expected.items():
+            covered[key] += fit.ci95[key][0] <= value <= fit.ci95[key][1]
+        # with the effect modelled the residual is the noise: mean |r| = σ sqrt(2/π), within 4 standard errors
+        assert fit.loss == pytest.approx(NOISE * math.sqrt(2 / math.pi), rel=4 / math.sqrt(ctx.times.size))
+        assert fit.loss < 0.5 * fits["none"].loss
+    # a 95 % interval misses the truth in more than one of five seeds with probability 2 %
+    assert all(count >= SEEDS - 1 for count in covered.values()), covered
+
+
+def test_no_effect_is_named_in_clean_readings():
+    alarms = 0
+    for seed in range(10):
+        ctx = synthetic_context(None, seed=seed)
+        fits = {name: fit_sensor(c, ctx) for name, c in SENSOR_CANDIDATES.items()}
+        fits["none"] = fit_sensor(NONE, ctx)
+        alarms += rank(fits, ctx.measured, NOISE)[1] != "none"
+    # ΔBIC > 10 is a likelihood ratio above e^5 against a one-parameter extension: false alarms are rare
+    assert alarms <= 1
+
+
+def test_needs_diagnosis_tells_structure_from_noise():
+    rng = np.random.default_rng(1)
+    t = np.arange(300) / RATE
+    predicted = 0.05 * np.sin(2 * np.pi * t)
+    problem = SimpleNamespace(train=np.ones(t.size, bool), recording=SimpleNamespace(sensor=SensorSpec(
+        mode="tangential", resolution=None)))
+    problem.measured = predicted + rng.normal(0, NOISE, t.size)
+    ident = SimpleNamespace(problem=problem, selected=SimpleNamespace(predicted=predicted))
+    assert not needs_diagnosis(ident)["needed"]
+    problem.measured = first_order_lag(predicted, 1 / RATE, 0.1) + rng.normal(0, NOISE, t.size)
+    verdict = needs_diagnosis(ident)
+    assert verdict["needed"] and verdict["excess"] > verdict["excess_limit"]
+
+
+def test_bad_inputs_name_the_field_or_file(tmp_path):
+    with pytest.raises(ValueError, match="diagnose.candidates.*sensor_lag"):
+        check_names(["sensor_lag", "gremlins"])
+    with pytest.raises(FileNotFoundError, match="report.json"):
+        law_from_report(tmp_path)
+    (tmp_path / "report.json").write_text(json.dumps({"selected": "newtonian", "laws": {}}))
+    with pytest.raises(ValueError, match="newtonian"):
+        law_from_report(tmp_path / "report.json")
+
+
+def test_scaled_law_scales_the_viscosity_at_every_rate():
+    law = make_law("carreau", eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
+    rates = torch.tensor([0.1, 1.0, 10.0], dtype=torch.float64)
+    np.testing.assert_allclose(scaled_law(law, 1.5)(rates).detach().numpy(), 1.5 * law(rates).detach().numpy(),
+                               rtol=1e-5)
+
+
+def test_base_reuses_the_identification_readings_on_the_same_samples():
+    law = Newtonian(eta=0.8)
+    times = np.arange(50) / RATE
+    jacobian = np.linspace(0.0, 1.0, 50)[:, None]
+    problem = SimpleNamespace(config=FAST, times=times)
+    fit = SimpleNamespace(model=SimpleNamespace(name="newtonian", material=law), predicted=np.ones(50),
+                          jacobian=jacobian)
+    ident = SimpleNamespace(selected=fit, density={"value": 1000.0}, problem=problem)
+    base = base_from_identification(ident, problem)
+    assert base.simulations == 0 and base.density == 1000.0
+    np.testing.assert_array_equal(base.scale_column, jacobian[:, 0])  # η is the Newtonian law's stress scale
+
+
+def lagged_recording(tau, eta=0.8, seed=0, durations=(0.4, 0.2, 0.4)):
+    """A recording of a Newtonian fluid made with the fitting simulator, read through a first-order lag."""
+    traj = programme(durations=durations)
+    cup, rod = CupGeometry(radius=0.0425, fill_height=0.13), RodGeometry(radius=0.0125, immersion_depth=0.08)
+    sensor = SensorSpec(mode="component", axis=(0.0, 1.0), resolution=0.001, sample_rate=RATE)
+    blank = Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
+                      force=np.zeros(traj.t.size), name="lagged")
+    with torch.no_grad():
+        result = StirringSimulator(Newtonian(eta=eta), rig_from_recording(blank), FAST, density=1000.0)(traj)
+    t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
+    force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
+    reading = first_order_lag(sensor_reading_np(force, blank.velocity(), sensor), 1 / RATE, tau)
+    reading += np.random.default_rng(seed).normal(0.0, NOISE, reading.shape)
+    return Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
+                     force=reading, name="lagged")
+
+
+def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
+    recording = lagged_recording(tau=0.08)
+    # the identification's report, as diffstir-fit writes it: a Newtonian law 20 % off, which the scale corrects
+    report = {"selected": "newtonian", "laws": {"newtonian": {"params": {"eta": 0.96}}},
+              "density": {"value": 1000.0}}
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    diag = diagnose(recording, tmp_path / "report.json", config=FAST, candidates=["sensor_lag", "viscoelasticity"],
+                    max_iterations=2)
+    assert diag.verdict == "sensor_lag"
+    assert diag.base.simulations == 2 and diag.fits["viscoelasticity"].simulations > 0
+    fit = diag.fits["sensor_lag"]
+    lo, hi = fit.ci95["lag_time"]
+    assert lo <= 0.08 <= hi
+    assert fit.law["params"]["eta"] == pytest.approx(0.8, rel=0.05)
+    paths = write_diagnosis(diag, tmp_path / "out")
+    report = json.loads(paths["json"].read_text())
+    top = report["ranking"][0]
+    assert report["verdict"] == "sensor_lag" and top["effect"] == "sensor_lag"
+    assert {"effect", "score", "params", "loss_before", "loss_after"} <= set(top)
+    assert top["loss_after"] < 0.5 * top["loss_before"]
+    assert "sensor response" in report["sentence"]
+    assert all(paths[k].stat().st_size > 0 for k in ("md", "residual", "before_after", "candidates"))
+
+
+def test_diagnose_app_writes_the_diagnosis(tmp_path, monkeypatch):
+    import sys
+
+    from diffstir.apps.diagnose import main
+    from diffstir.recording import save_recording
+
+    # loading checks that a recording spans at least one stirring period (1.6 s at 0.06 m/s on this circle)
+    recording = lagged_recording(tau=0.08, durations=(0.8, 0.3, 0.8))
+    path = save_recording(recording, tmp_path / "rec")
+    report = {"selected": "newtonian", "laws": {"newtonian": {"params": {"eta": 0.8}}}, "density": {"value": 1000.0}}
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "fit" / "report.json").write_text(json.dumps(report))
+    out = tmp_path / "out"
+    monkeypatch.setattr(sys, "argv", ["diffstir-diagnose", f"recording={path}", f"identification={tmp_path / 'fit'}",
+                                      f"out={out}", "candidates=[sensor_lag,sensor_drift]", "sim.dx=0.01",
+                                      "sim.sound_speed=2.0", "progress=false"])
+    main()
+    diagnosis = json.loads((out / "diagnosis.json").read_text())
+    assert diagnosis["verdict"] == "sensor_lag"
+    assert [r["effect"] for r in diagnosis["ranking"]][0] == "sensor_lag"
+    assert (out / "diagnosis.md").read_text().startswith("# Diagnosis")
