@@ -207,6 +207,10 @@ def test_fit_app_writes_a_report(tmp_path, monkeypatch):
     eta = report["laws"]["newtonian"]["params"]["eta"]
     assert eta == pytest.approx(TRUE_ETA, rel=0.1)
     assert (out / "checkpoint.json").exists() and (out / "config.yaml").exists()
+    # the shipped rectifier was trained on the coarse stage's grid, not this one: no refined value, and why
+    refined = report["apparent_viscosity"]["refined"]
+    assert refined["value"] is None and "dx=0.01" in refined["note"]
+    assert report["preliminary"]["viscosity"] == pytest.approx(TRUE_ETA, rel=0.25)
 
 
 def test_broyden_ignores_steps_below_the_parameter_resolution():
