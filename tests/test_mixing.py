@@ -133,3 +133,24 @@ def test_mixing_experiment_writes_the_report(blend_lab, tmp_path, monkeypatch):
     assert ETA2 < m["blend_viscosity"] < ETA1
     assert m["lederer_roegiers"]["range"] == pytest.approx(list(blend_range(ETA1, ETA2, blend.fraction)))
     assert (out / "time_course.png").stat().st_size > 0
+
+
+def test_synth_app_writes_a_two_fluid_recording_and_its_mixing_truth(tmp_path, monkeypatch):
+    from diffstir.apps.synth import main
+    from diffstir.lab import truth_path
+    from diffstir.recording import load_recording
+
+    monkeypatch.setattr(sys, "argv", [
+        "diffstir-synth", "lab/blend=f60_water", f"out={tmp_path}", "lab/sensor=ideal",
+        "lab.programme.segments=[{speed: 0.1, duration: 1.0}]", "lab.programme.radius=0.012",
+        "lab.sim.dx=0.01", "lab.sim.sound_speed=1.0", "lab.blend.fraction=0.3"])
+    main()
+    rec = load_recording(tmp_path / "f60_water")
+    truth = json.loads(truth_path(tmp_path / "f60_water").read_text())
+    blend = truth["fluid"]["blend"]
+    assert blend["fraction"] == 0.3 and blend["first"]["name"] == "F60 syrup" and blend["second"]["name"] == "water"
+    # one density for the blend: the volume-weighted mean of the presets' (diffstir/lab/blend.py)
+    assert truth["fluid"]["density"] == pytest.approx(0.3 * 1290.0 + 0.7 * 998.23)
+    intensity = truth["mixing"]["intensity_of_segregation"]
+    assert intensity[0] == pytest.approx(1.0) and intensity[-1] < intensity[0]  # segregated, then mixing
+    assert rec.t[-1] == pytest.approx(1.0, abs=0.02)

@@ -1,6 +1,7 @@
 """diffstir-synth: write a virtual-lab recording and, beside it, the truth it was made from.
 
     diffstir-synth lab/fluid=ketchup lab/programme=speed_steps lab/physics=thixotropic seed=3 out=outputs/lab
+    diffstir-synth lab/blend=f60_water lab/programme=paper out=outputs/lab      # two fluids mixing (docs/mixing.md)
 """
 
 from __future__ import annotations
@@ -14,7 +15,10 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import CONF_DIR
-from diffstir.lab import Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, write_lab_recording
+from diffstir.lab import (
+    Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, synthesise_blend,
+    write_lab_recording,
+)
 
 
 @hydra.main(config_path=CONF_DIR, config_name="synth", version_base="1.3")
@@ -25,14 +29,27 @@ def main(cfg: DictConfig) -> None:
     programme = lab["programme"]
     trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
                                     ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
-    name = cfg.name or HydraConfig.get().runtime.choices["lab/fluid"]
+    choices = HydraConfig.get().runtime.choices
     started = time.perf_counter()
-    result = synthesise(fluid, trajectory, rig=rig, sim_config=sim_config, sensor=SensorModel(**lab["sensor"]),
-                        physics=HiddenPhysicsSpec.from_mapping(lab["physics"]), seed=int(cfg.seed), name=name,
-                        label=cfg.label, programme=programme)
+    sensor = SensorModel(**lab["sensor"])
+    if lab.get("blend"):
+        name = cfg.name or choices["lab/blend"]
+        result = synthesise_blend(_blend(lab["blend"]), trajectory, rig=rig, sim_config=sim_config, sensor=sensor,
+                                  seed=int(cfg.seed), name=name, label=cfg.label, programme=programme)
+    else:
+        name = cfg.name or choices["lab/fluid"]
+        result = synthesise(fluid, trajectory, rig=rig, sim_config=sim_config, sensor=sensor,
+                            physics=HiddenPhysicsSpec.from_mapping(lab["physics"]), seed=int(cfg.seed), name=name,
+                            label=cfg.label, programme=programme)
     recording, truth = write_lab_recording(result, Path(cfg.out) / name, overwrite=bool(cfg.overwrite))
     print(f"{result.truth['simulator']['steps']} steps of {result.truth['simulator']['dt']:.3g} s in "
           f"{time.perf_counter() - started:.0f} s; wrote {recording} ({result.recording.t.size} rows) and {truth}")
+
+
+def _blend(cfg: dict) -> Blend:
+    """A ``Blend`` from a ``lab/blend`` config: two fluid mappings and the mixing settings."""
+    settings = {k: v for k, v in cfg.items() if k not in ("first", "second")}
+    return Blend(first=Fluid.from_mapping(cfg["first"]), second=Fluid.from_mapping(cfg["second"]), **settings)
 
 
 if __name__ == "__main__":
