@@ -1,7 +1,7 @@
 """diffstir-fit: identify the fluid in a recording and write report.json, report.md, plots and TensorBoard logs.
 
-    diffstir-fit recording=examples/carreau_example out=outputs/carreau
-    python -m diffstir.fit recording=examples/carreau_example model=[newtonian,carreau]
+    diffstir-fit recording=diffstir/data/examples/carreau_example out=outputs/carreau
+    python -m diffstir.fit recording=diffstir/data/examples/carreau_example model=[newtonian,carreau]
     diffstir-fit experiment=behaviour recordings=[rec/slow,rec/fast] out=outputs/behaviour    # docs/behaviour.md
     diffstir-fit experiment=mixing recordings=[rec/blend] mixing.viscosities=[1.0,0.1] mixing.fraction=0.5
 """

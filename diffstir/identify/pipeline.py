@@ -1,6 +1,6 @@
 """Identify a fluid from a recording: density, every model fitted, uncertainty, the selected law.
 
-    result = identify(load_recording("examples/carreau_example"), config=SimConfig(dim=2),
+    result = identify(load_recording("diffstir/data/examples/carreau_example"), config=SimConfig(dim=2),
                       checkpoint="out/checkpoint.json")
     result.summary()["selected"]
 
