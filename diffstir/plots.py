@@ -7,13 +7,37 @@ from pathlib import Path
 import numpy as np
 
 
-def plot_forces(result, law, out: Path) -> tuple[Path, Path]:
-    """Write the force on the rod over time as ``force.csv`` and ``force.png`` in ``out``."""
+def pyplot():
+    """matplotlib.pyplot on the headless Agg backend (imported on first use: plotting is optional work)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Save ``fig`` to ``path`` at the project's resolution and release it."""
+    fig.savefig(path, dpi=120)
+    pyplot().close(fig)
+    return path
+
+
+def viscosity_band(ax, rates: np.ndarray, model, theta: np.ndarray, covariance: np.ndarray, label: str,
+                   alpha: float = 0.15) -> None:
+    """A fitted law's flow curve η(γ̇) [Pa·s] over ``rates`` [1/s] on log axes, with its 95 % band where finite."""
+    from .identify.uncertainty import log_viscosity_interval
+
+    eta, band_lo, band_hi = log_viscosity_interval(model, theta, covariance, rates)
+    line, = ax.loglog(rates, eta, label=label)
+    finite = np.isfinite(band_hi)
+    ax.fill_between(rates[finite], band_lo[finite], band_hi[finite], color=line.get_color(), alpha=alpha)
+
+
+def plot_forces(result, law, out: Path) -> tuple[Path, Path]:
+    """Write the force on the rod over time as ``force.csv`` and ``force.png`` in ``out``."""
+    plt = pyplot()
     t = result.times.detach().cpu().numpy()
     force = result.force.detach().cpu().numpy()
     unit = "N/m" if result.per_unit_length else "N"
@@ -29,7 +53,4 @@ def plot_forces(result, law, out: Path) -> tuple[Path, Path]:
     ax.set_ylabel(f"force on the rod [{unit}]")
     ax.set_title(repr(law), fontsize=8)
     ax.legend()
-    png = out / "force.png"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    return csv, png
+    return csv, save_figure(fig, out / "force.png")

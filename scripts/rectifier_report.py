@@ -19,7 +19,7 @@ import lightning as L
 import numpy as np
 import torch
 
-from diffstir.rectifier.apply import load_rectifier
+from diffstir.rectifier.apply import load_rectifier, refine
 from diffstir.rectifier.training import PairData, evaluate, load_pairs, tensors, train
 
 PAPER = {"preliminary": {"mae_mpas": 348.80, "rmse_mpas": 534.11}, "refined": {"mae_mpas": 55.53, "rmse_mpas": 101.99}}
@@ -42,14 +42,13 @@ HEADER = ("| pairs | n | MAE before [mPa·s] | MAE after | RMSE before [mPa·s] 
           "median rel. error before [%] | after [%] |\n|---|---|---|---|---|---|---|---|")
 
 
-def usable(rectifier, pairs):
-    """Pairs the rectifier refines: resolving viscosity and inside its training range (no extrapolation)."""
-    keep = []
-    for p in pairs:
-        x = torch.tensor([p[name] for name in rectifier.inputs], dtype=torch.float32)
-        if p["resolves"] and not rectifier.outside_range(x):
-            keep.append(p)
-    return keep
+def usable(rectifier, metadata, pairs, checkpoint):
+    """Pairs the rectifier refines in ``diffstir-fit`` (``refine`` gives a value: the estimator matches, viscosity
+    is resolved and the inputs lie in the training range; no extrapolation)."""
+    return [p for p in pairs if refine(rectifier, metadata, {
+        "viscosity": p["preliminary_viscosity"], "mean_stirring_speed": p["mean_stirring_speed"],
+        "resolves": p["resolves"], "estimator": p["estimator_config"]}, p["density_estimate"], checkpoint)["value"]
+        is not None]
 
 
 def main() -> None:
@@ -64,7 +63,7 @@ def main() -> None:
     warnings.filterwarnings("ignore", ".*does not have many workers.*")
     torch.set_num_threads(1)
     card = json.loads(Path(args.card).read_text())
-    rectifier, _ = load_rectifier(args.checkpoint)
+    rectifier, metadata = load_rectifier(args.checkpoint)
     split, train_cfg = card["config"]["split"], card["config"]["train"]
     data = PairData(card["config"]["data"], list(rectifier.inputs), val_fraction=split["val_fraction"],
                     test_fraction=split["test_fraction"], batch_size=train_cfg["batch_size"], seed=split["seed"])
@@ -104,7 +103,7 @@ def main() -> None:
         print(HEADER)
         for path in args.unseen:
             pairs = load_pairs(path)
-            refined = usable(rectifier, pairs)
+            refined = usable(rectifier, metadata, pairs, args.checkpoint)
             results["unseen"][path] = {"pairs": len(pairs), "refined": len(refined),
                                        "errors": evaluate(rectifier, refined) if refined else None}
             if refined:

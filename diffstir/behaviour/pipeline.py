@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..density import estimate_density
+from ..density import estimate_recording_density
+from ..identify.pipeline import configured_density
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .apparent import ViscosityPoint, window_viscosity
@@ -100,18 +101,11 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
 def combined_density(recordings: list[Recording], density: float | None) -> dict:
     """The inverse-variance weighted mean of the recordings' Archimedes densities [kg/m³] with its 95 % interval,
     or ``density`` [kg/m³] when no recording has a density block."""
-    estimates = [estimate_density(r.density, rod_radius=r.rod.radius,
-                                  **({"force_resolution": r.sensor.resolution} if r.sensor.resolution else {}))
-                 for r in recordings if r.density is not None]
+    estimates = [estimate_recording_density(r) for r in recordings if r.density is not None]
     if estimates:
         w = np.array([1.0 / e.std**2 for e in estimates])
         value = float(np.sum(w * [e.value for e in estimates]) / w.sum())
         std = float(1.0 / math.sqrt(w.sum()))
         return {"value": value, "ci95": [value - 1.96 * std, value + 1.96 * std], "unit": "kg/m^3",
                 "source": f"archimedes ({len(estimates)} recordings)"}
-    if density is None:
-        raise RecordingError(f"{recordings[0].source('yaml')}: no recording has a density block, and no density "
-                             "(kg/m^3) was given; set density=... in the config")
-    if not 100.0 <= density <= 25000.0:
-        raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
-    return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}
+    return configured_density(density, f"{recordings[0].source('yaml')}: no recording has a density block")

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..identify.uncertainty import log_viscosity_interval
+from ..identify.report import format_bound
+from ..plots import pyplot, save_figure, viscosity_band
 from .pipeline import Behaviour
 
 
@@ -47,23 +48,15 @@ def markdown(summary: dict) -> str:
         lines += ["", f"Joint fit over all speeds, selected by BIC: **{joint['selected']}**", "",
                   "| law | loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
         for name, law in joint["laws"].items():
-            params = "; ".join(f"{k} = {v:.4g} [{_fmt(law['ci95'][k][0])}, {_fmt(law['ci95'][k][1])}] "
+            params = "; ".join(f"{k} = {v:.4g} [{format_bound(law['ci95'][k][0])}, {format_bound(law['ci95'][k][1])}] "
                                f"{law['units'][k]}" + ("" if law["identifiable"][k] else " (not identifiable)")
                                for k, v in law["params"].items())
             lines.append(f"| {name} | {law['loss']:.4g} | {law['bic']:.1f} | {params} |")
     return "\n".join(lines) + "\n"
 
 
-def _fmt(value) -> str:
-    return "inf" if value is None else f"{value:.3g}"
-
-
 def plot(result: Behaviour, out: Path) -> dict[str, Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     points = result.points
     speed = np.array([p.speed for p in points])
     eta = np.array([p.viscosity for p in points])
@@ -79,9 +72,7 @@ def plot(result: Behaviour, out: Path) -> dict[str, Path]:
     ax.set_xlabel("stirring speed [m/s]")
     ax.set_ylabel("apparent viscosity [mPa·s]")
     ax.legend(fontsize=8)
-    paths["viscosity_vs_speed"] = out / "viscosity_vs_speed.png"
-    fig.savefig(paths["viscosity_vs_speed"], dpi=120)
-    plt.close(fig)
+    paths["viscosity_vs_speed"] = save_figure(fig, out / "viscosity_vs_speed.png")
 
     fig, ax = plt.subplots(figsize=(6, 4.2), constrained_layout=True)
     ax.errorbar(rate, eta, yerr=[eta - lo, hi - eta], fmt="ko", capsize=3, label="per speed (95 %)")
@@ -90,16 +81,10 @@ def plot(result: Behaviour, out: Path) -> dict[str, Path]:
               label=f"slope {cls.slope.value:.2f} [{cls.slope.ci95[0]:.2f}, {cls.slope.ci95[1]:.2f}]")
     if result.joint is not None:
         for name, fit in result.joint.fits.items():
-            curve, band_lo, band_hi = log_viscosity_interval(fit.model, fit.theta,
-                                                             result.joint.uncertainty[name].covariance, grid)
-            line, = ax.loglog(grid, curve, label=f"{name} (joint fit)" + (" *" if name == result.joint.selected
-                                                                          else ""))
-            finite = np.isfinite(band_hi)
-            ax.fill_between(grid[finite], band_lo[finite], band_hi[finite], color=line.get_color(), alpha=0.12)
+            label = f"{name} (joint fit)" + (" *" if name == result.joint.selected else "")
+            viscosity_band(ax, grid, fit.model, fit.theta, result.joint.uncertainty[name].covariance, label, 0.12)
     ax.set_xlabel("effective shear rate [1/s]")
     ax.set_ylabel("apparent viscosity [Pa·s]")
     ax.legend(fontsize=7)
-    paths["flow_curve"] = out / "flow_curve.png"
-    fig.savefig(paths["flow_curve"], dpi=120)
-    plt.close(fig)
+    paths["flow_curve"] = save_figure(fig, out / "flow_curve.png")
     return paths

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..plots import pyplot, save_figure
 from .pipeline import Diagnosis
 
 PHASE_COLOURS = {"start-up": "tab:green", "speed change": "tab:orange", "reversal": "tab:purple", "stop": "0.75"}
@@ -87,16 +88,7 @@ def markdown(summary: dict) -> str:
 
 def plot_all(diag: Diagnosis, out: Path) -> dict[str, Path]:
     """residual.png, before_after.png and candidates.png."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def save(fig, path: Path) -> Path:
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        return path
-
+    plt = pyplot()
     t, measured = diag.problem.times, diag.problem.measured
     loc, none, refit = diag.location, diag.fits["none"], diag.refit
     paths = {}
@@ -122,7 +114,7 @@ def plot_all(diag: Diagnosis, out: Path) -> dict[str, Path]:
     axes[1].set_ylabel("residual [N]")
     axes[1].set_xlabel("time [s] (shaded red: suspicious windows)")
     axes[1].legend(fontsize=7, loc="upper right")
-    paths["residual"] = save(fig, out / "residual.png")
+    paths["residual"] = save_figure(fig, out / "residual.png")
 
     fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True, constrained_layout=True)
     axes[0].plot(t, measured, color="0.4", lw=0.7, label="measured")
@@ -135,12 +127,12 @@ def plot_all(diag: Diagnosis, out: Path) -> dict[str, Path]:
     axes[1].set_ylabel("residual [N]")
     axes[1].set_xlabel("time [s]")
     axes[1].legend(fontsize=7, loc="upper right")
-    paths["before_after"] = save(fig, out / "before_after.png")
+    paths["before_after"] = save_figure(fig, out / "before_after.png")
 
     scored = [r for r in diag.ranking if r.get("score") is not None]
     fig, ax = plt.subplots(figsize=(6, 0.35 * len(scored) + 1.2), constrained_layout=True)
     ax.barh([r["effect"] for r in scored][::-1], [r["score"] for r in scored][::-1], color="tab:blue")
     ax.axvline(-diag.evidence["thresholds"]["evidence"], color="k", ls=":", lw=0.8)
     ax.set_xlabel("score: BIC − BIC(none) (dotted: an effect is named left of it)")
-    paths["candidates"] = save(fig, out / "candidates.png")
+    paths["candidates"] = save_figure(fig, out / "candidates.png")
     return paths

@@ -61,7 +61,7 @@ class ViscosityLadder:
         """One forward simulation per probe viscosity on ``problem`` (``on_evaluation`` as for ``Readings``)."""
         model = FitModel.named("newtonian", eta=viscosities[0])
         readings = Readings(problem, model, on_evaluation)
-        means = tuple(float(np.mean(np.abs(readings(np.log([eta]))[problem.train]))) for eta in viscosities)
+        means = tuple(problem.mean_reading(readings(np.log([eta]))) for eta in viscosities)
         return cls(tuple(float(v) for v in viscosities), means)
 
     def _informative(self) -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +94,7 @@ class ViscosityLadder:
     def estimate(self, problem: StirProblem) -> float:
         """The Newtonian-equivalent viscosity [Pa·s] of ``problem``'s measured readings (fitted samples)."""
         upper = math.exp(FitModel.named("newtonian", eta=1.0).upper[0])
-        return self.invert(float(np.mean(np.abs(problem.measured[problem.train]))), upper)
+        return self.invert(problem.mean_reading(), upper)
 
 
 def effective_shear_rate(problem: StirProblem, ladder: ViscosityLadder, eta_n: float, on_evaluation=None) -> float:
@@ -107,7 +107,7 @@ def effective_shear_rate(problem: StirProblem, ladder: ViscosityLadder, eta_n: f
     probe = FitModel.named("power_law", k=k, n=PROBE_INDEX)
     k = probe.params_si()["k"]  # within the law's bounds
     reading = Readings(problem, probe, on_evaluation)(probe.theta())
-    eta_p = ladder.invert(float(np.mean(np.abs(reading[problem.train]))))
+    eta_p = ladder.invert(problem.mean_reading(reading))
     rate = (eta_p / k) ** (1.0 / (PROBE_INDEX - 1.0))
     return float(min(max(rate, 0.1 * rate0), 10.0 * rate0))
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..density import estimate_density
+from ..density import estimate_recording_density
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .initial import (
@@ -197,8 +197,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             ladder = ViscosityLadder.simulate(stage_problem, on_evaluation=tracker.evaluation)
             eta = ladder.estimate(stage_problem)
             state["ladder"] = {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs),
-                               "estimate": eta, "resolves": ladder.resolves(
-                                   float(np.mean(np.abs(stage_problem.measured[stage_problem.train])))),
+                               "estimate": eta, "resolves": ladder.resolves(stage_problem.mean_reading()),
                                "dim": stage_problem.config.dim, "dx": stage_problem.config.dx,
                                "sound_speed": stage_problem.config.sound_speed}
             save()
@@ -249,13 +248,16 @@ def density_estimate(recording: Recording, density: float | None) -> dict:
     """The fluid's density [kg/m³] with its 95 % interval: Archimedes from the recording's density block, or
     ``density`` from the config when the recording has none."""
     if recording.density is not None:
-        est = estimate_density(recording.density, rod_radius=recording.rod.radius,
-                               **({"force_resolution": recording.sensor.resolution}
-                                  if recording.sensor.resolution else {}))
+        est = estimate_recording_density(recording)
         return {"value": est.value, "ci95": list(est.ci95), "unit": "kg/m^3", "source": "archimedes"}
+    return configured_density(density, f"{recording.source('yaml')}: no density block")
+
+
+def configured_density(density: float | None, missing: str) -> dict:
+    """The config's ``density`` [kg/m³] as a density report, for recordings without a density block (``missing``
+    says which, for the error when none is configured either)."""
     if density is None:
-        raise RecordingError(f"{recording.source('yaml')}: no density block, and no density (kg/m^3) was given; "
-                             "set density=... in the config")
+        raise RecordingError(f"{missing}, and no density (kg/m^3) was given; set density=... in the config")
     if not 100.0 <= density <= 25000.0:
         raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
     return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}

@@ -105,6 +105,12 @@ class StirProblem:
         mask = self.train if train else ~self.train
         return float(np.mean(np.abs(self.measured[mask] - predicted[mask]))) if mask.any() else None
 
+    def mean_reading(self, readings: np.ndarray | None = None) -> float:
+        """Mean |reading| [N] over the fitted samples of ``readings`` (one per compared sample; default: the
+        measured ones): what the Newtonian ladder compares."""
+        readings = self.measured if readings is None else readings
+        return float(np.mean(np.abs(readings[self.train])))
+
     def with_config(self, config: SimConfig) -> "StirProblem":
         """The same recording, samples and density, simulated with ``config``."""
         return StirProblem(self.recording, config, self.density, self.windows, max_samples=self.max_samples)

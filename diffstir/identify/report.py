@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .pipeline import Identification
-from .uncertainty import log_viscosity_interval
+from ..plots import pyplot, save_figure, viscosity_band
 
 
 def write_report(result: Identification, out: str | Path) -> dict[str, Path]:
@@ -55,7 +55,8 @@ def markdown(summary: dict) -> str:
         rows["corotated (baseline)"] = summary["baseline"]
     for name, law in rows.items():
         params = "; ".join(
-            f"{k} = {v:.4g} [{_fmt(law['ci95'][k][0])}, {_fmt(law['ci95'][k][1])}] {law['units'][k]}"
+            f"{k} = {v:.4g} [{format_bound(law['ci95'][k][0])}, {format_bound(law['ci95'][k][1])}] "
+            f"{law['units'][k]}"
             + ("" if law["identifiable"][k] else " (not identifiable)") for k, v in law["params"].items())
         holdout = "-" if law["holdout_loss"] is None else f"{law['holdout_loss']:.4g}"
         lines.append(f"| {name} | {law['loss']:.4g} | {holdout} | {law['bic']:.1f} | {params} |")
@@ -68,22 +69,14 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def _fmt(value) -> str:
+def format_bound(value) -> str:
+    """An interval end for a table: 3 significant digits, or inf when it is unbounded (None)."""
     return "inf" if value is None else f"{value:.3g}"
 
 
 def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     """Measured versus simulated readings per law, flow curves with 95 % bands, and loss curves."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def _save(fig, path: Path) -> Path:
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        return path
-
+    plt = pyplot()
     problem = result.problem
     paths = {}
     fig, axes = plt.subplots(len(result.fits), 1, figsize=(8, 1.8 * len(result.fits) + 0.6), sharex=True,
@@ -95,23 +88,19 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
         ax.set_ylabel("reading [N]")
         ax.legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel("time [s] (dotted: start of the held-out part)")
-    paths["forces"] = _save(fig, out / "forces.png")
+    paths["forces"] = save_figure(fig, out / "forces.png")
 
     lo, hi = result.probed_shear_rates()
     rates = np.logspace(np.log10(lo) - 2, np.log10(hi) + 2, 120)
     fig, ax = plt.subplots(figsize=(6, 4.2), constrained_layout=True)
     ax.axvspan(lo, hi, color="0.9", label="probed by the stir")
     for name, fit in result.fits.items():
-        eta, band_lo, band_hi = log_viscosity_interval(fit.model, fit.theta, result.uncertainty[name].covariance,
-                                                       rates)
-        line, = ax.loglog(rates, eta, label=name)
-        finite = np.isfinite(band_hi)
-        ax.fill_between(rates[finite], band_lo[finite], band_hi[finite], color=line.get_color(), alpha=0.15)
+        viscosity_band(ax, rates, fit.model, fit.theta, result.uncertainty[name].covariance, name)
     ax.axvline(result.effective_shear_rate, color="k", ls=":", lw=0.8)
     ax.set_xlabel("shear rate [1/s] (dotted: effective)")
     ax.set_ylabel("apparent viscosity [Pa·s]")
     ax.legend(fontsize=7)
-    paths["flow_curves"] = _save(fig, out / "flow_curves.png")
+    paths["flow_curves"] = save_figure(fig, out / "flow_curves.png")
 
     fig, ax = plt.subplots(figsize=(6, 3.5), constrained_layout=True)
     for name, fit in result.fits.items():
@@ -121,5 +110,5 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     ax.set_xlabel("forward simulations")
     ax.set_ylabel("paper loss mean |ΔF| [N]")
     ax.legend(fontsize=7)
-    paths["losses"] = _save(fig, out / "losses.png")
+    paths["losses"] = save_figure(fig, out / "losses.png")
     return paths

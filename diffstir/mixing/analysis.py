@@ -14,6 +14,7 @@ import numpy as np
 
 from ..behaviour import ViscosityPoint, combined_density
 from ..mpm import SimConfig
+from ..plots import pyplot, save_figure
 from ..recording import Recording
 from .rule import blend_range, implied_alpha
 from .track import Approach, fit_approach, track_viscosity
@@ -76,11 +77,7 @@ def write_mixing_report(result: Mixing, out) -> dict:
     import json
     from pathlib import Path
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     summary = result.summary()
@@ -101,6 +98,5 @@ def write_mixing_report(result: Mixing, out) -> dict:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("apparent viscosity [Pa·s]")
     ax.legend(fontsize=7)
-    fig.savefig(paths["time_course"], dpi=120)
-    plt.close(fig)
+    save_figure(fig, paths["time_course"])
     return paths

@@ -311,14 +311,13 @@ def _fluid_pairs(design, shard, k, fluid_id, group, ladder, trajectory, density,
         problem = _problem(lab.recording, estimator_config, rho["value"], design)
         if not np.array_equal(problem.times, np.asarray(group["times"])):
             raise RuntimeError(f"{fluid_id}: the recording's sample times differ from the group's ladder")
-        measured = float(np.mean(np.abs(problem.measured[problem.train])))
         lines.append({
             "format": PAIRS_FORMAT, "design": design.digest(), "pair_id": f"{fluid_id}-r{s:02d}",
             "fluid_id": fluid_id, "shard": shard,
             "mean_stirring_speed": mean_stirring_speed(problem),
             "preliminary_viscosity": ladder.estimate(problem),
             "reference_viscosity": reference,
-            "resolves": ladder.resolves(measured),
+            "resolves": ladder.resolves(problem.mean_reading()),
             "effective_shear_rate": shear_rate,
             "law": fluid.law["name"], "law_parameters": law.parameters_si(),
             "zero_shear_viscosity": float(law.zero_shear_viscosity().item()),
