@@ -2,20 +2,22 @@
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
 from diffstir.identify import FitModel, identify
-from diffstir.identify.optimise import _BroydenJacobian
+from diffstir.identify.initial import ViscosityLadder, effective_shear_rate
+from diffstir.identify.optimise import _BroydenJacobian, fit_model
 from diffstir.identify.problem import StirProblem, Windows, rig_from_recording
 from diffstir.identify.selection import bic, select
 from diffstir.identify.uncertainty import effective_samples, laplace
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec,
                                 sensor_reading_np)
-from diffstir.rheology import Newtonian
+from diffstir.rheology import Carreau, Newtonian
 from diffstir.trajectory import circle
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # the rod is 2.5 cells across: coarse, but the same model
@@ -114,6 +116,20 @@ def test_bic_charges_parameters():
     assert chosen["selected"] == "a" and chosen["lowest_loss"] == "b"
 
 
+def test_effective_shear_rate_is_where_a_thinning_fluid_reads_like_its_newtonian_equivalent():
+    # the defining property of γ̇_eff: a shear-thinning fluid's reading equals that of a Newtonian fluid with its
+    # viscosity at γ̇_eff. Carreau n = 0.6 thins by 25 % across 1-4 1/s, so a rate off by a factor 2 fails the 10 %
+    # (the earlier n = 0.5 power-law probe put γ̇_eff 3.5x too low on this kind of stir)
+    law = Carreau(eta0=1.0, eta_inf=1e-3, lam=0.5, n=0.6)
+    rec = synthetic_recording(law, duration=0.6, noise=0.0)
+    problem = StirProblem(rec, FAST, 1000.0, Windows.of(rec, None, 0.0))
+    eta_n = ViscosityLadder.simulate(problem, (0.3, 0.6, 1.2)).estimate(problem)
+    rate = effective_shear_rate(problem, eta_n)
+    speed_over_radius = 0.06 / 0.0125
+    assert 0.1 * speed_over_radius < rate < 10 * speed_over_radius  # inside the clamp: a measured value
+    assert float(law(torch.tensor([rate])).item()) == pytest.approx(eta_n, rel=0.1)
+
+
 def test_windows_split_and_too_short_recordings(newtonian_recording):
     w = Windows.of(newtonian_recording, 0.3, 0.25)
     assert (w.start, w.end) == (0.0, pytest.approx(0.3)) and w.split == pytest.approx(0.225)
@@ -147,6 +163,18 @@ def test_newtonian_viscosity_is_recovered_within_its_interval(newtonian_identifi
     # the fit's residual is the sensor noise
     assert unc.residual_std == pytest.approx(NOISE, rel=0.3)
     assert result.resolvable["viscosity"]
+
+
+def test_newtonian_fit_stops_at_the_simulators_viscosity_cap(newtonian_recording):
+    # above SimConfig.viscosity_cap the simulated reading no longer changes with η: the fit must end on the cap,
+    # flagged at a bound and not identifiable, instead of wandering past it (a 10 Pa s lab fluid ended at 21 Pa s)
+    cap = 0.4  # Pa s, half the recording's true viscosity
+    problem = StirProblem(newtonian_recording, replace(FAST, viscosity_cap=cap), 1000.0,
+                          Windows.of(newtonian_recording, None, 0.0))
+    fit = fit_model(problem, FitModel.named("newtonian", eta=0.3), max_iterations=4)
+    assert fit.model.params_si()["eta"] == pytest.approx(cap, rel=1e-4)
+    unc = laplace(fit.model, fit.theta, fit.jacobian[problem.train], (fit.predicted - problem.measured)[problem.train])
+    assert unc.at_bound["eta"] and not unc.identifiable["eta"]
 
 
 def test_power_law_fit_finds_a_newtonian_index(newtonian_identification):
@@ -211,6 +239,32 @@ def test_fit_app_writes_a_report(tmp_path, monkeypatch):
     refined = report["apparent_viscosity"]["refined"]
     assert refined["value"] is None and "dx=0.01" in refined["note"]
     assert report["preliminary"]["viscosity"] == pytest.approx(TRUE_ETA, rel=0.25)
+
+
+@pytest.mark.parametrize("launcher", ["basic", "joblib"])
+def test_fit_sweeps_recordings_with_hydra_multirun(tmp_path, launcher):
+    # the documented local sweep: one job, and one output directory with its report, per recording
+    import subprocess
+    import sys
+
+    from diffstir.recording import save_recording
+
+    paths = [save_recording(synthetic_recording(Newtonian(eta=eta), duration=1.7, seed=k), tmp_path / f"rec{k}")
+             for k, eta in enumerate((0.5, 1.0))]
+    sweep = tmp_path / "sweep"
+    command = [sys.executable, "-m", "diffstir.fit", "-m", f"recording={paths[0]},{paths[1]}",
+               f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}", "model=[newtonian]", "baseline=false",
+               "density=1000", "~coarse", "sim.dx=0.01", "fit.window=0.3", "fit.max_iterations=2", "progress=false",
+               "rectifier.checkpoint=null"]
+    if launcher == "joblib":
+        command += ["hydra.launcher.n_jobs=2"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    recordings = {json.loads((sweep / str(k) / "report.json").read_text())["recording"] for k in range(2)}
+    assert recordings == {str(p) for p in paths}
+    for k in range(2):
+        report = json.loads((sweep / str(k) / "report.json").read_text())
+        assert report["selected"] == "newtonian" and report["laws"]["newtonian"]["params"]["eta"] > 0
 
 
 def test_broyden_ignores_steps_below_the_parameter_resolution():

@@ -10,6 +10,7 @@ import torch
 from diffstir.identify.initial import ViscosityLadder
 from diffstir.mpm import SimConfig
 from diffstir.rectifier import pairs as pairs_module
+from diffstir.rheology import LAWS
 from diffstir.rectifier.apply import load_rectifier, refine
 from diffstir.rectifier.model import Rectifier
 from diffstir.rectifier.pairs import LAW_DRAWS, PairDesign, collect, draw_fluid, run_shard
@@ -97,6 +98,40 @@ def test_a_finished_shard_resumes_without_simulating(shard, monkeypatch):
     manifest = collect(design, out)
     assert manifest["complete"] and manifest["pairs"] == 6 and manifest["fluids"] == 2
     assert (out / "pairs.jsonl").read_text().count("\n") == 6
+
+
+def test_a_shard_measured_with_an_older_shear_rate_is_rereferenced_without_truth_simulations(shard, tmp_path,
+                                                                                          monkeypatch):
+    # a change of γ̇_eff's definition changes every reference η_law(γ̇_eff) but no truth simulation or reading:
+    # resuming re-measures the group's rates (keeping its ladder) and recomputes references from the stored laws
+    import shutil
+
+    design, out, _ = shard
+    copy = tmp_path / "pairs"
+    shutil.copytree(out / "shards", copy / "shards")
+    group_file = copy / "shards" / "shard-0000.group.json"
+    group = json.loads(group_file.read_text())
+    group_file.write_text(json.dumps({**group, "shear_rate_method": "an older one"}))
+    pairs_file = copy / "shards" / "shard-0000.jsonl"
+    before = [json.loads(x) for x in pairs_file.read_text().splitlines()]
+    pairs_file.write_text("".join(json.dumps({**r, "shear_rate_method": "an older one"}) + "\n" for r in before))
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("re-referencing simulated a truth or a ladder again")
+
+    monkeypatch.setattr(pairs_module, "simulate_truth", no_simulation)
+    monkeypatch.setattr(pairs_module.ViscosityLadder, "simulate", no_simulation)
+    monkeypatch.setattr(pairs_module, "effective_shear_rate", lambda problem, eta: 2.0 if eta < 1.0 else 3.0)
+    assert run_shard(design, 0, copy, truth_config=FAST, estimator_config=FAST, log=lambda _: None)["fluids"] == 2
+    assert json.loads(group_file.read_text())["ladder"] == group["ladder"]
+    after = [json.loads(x) for x in pairs_file.read_text().splitlines()]
+    assert [r["preliminary_viscosity"] for r in after] == [r["preliminary_viscosity"] for r in before]
+    for r in after:
+        law = LAWS[r["law"]](**r["law_parameters"]).double()
+        rate = r["effective_shear_rate"]
+        assert 2.0 - 1e-9 <= rate <= 3.0 + 1e-9 and r["shear_rate_method"] == pairs_module.SHEAR_RATE_METHOD
+        assert r["reference_viscosity"] == pytest.approx(float(law(torch.tensor([rate], dtype=torch.float64))),
+                                                         rel=1e-6)
 
 
 def test_failing_fluids_are_retried_recorded_and_reported(shard, tmp_path, monkeypatch):

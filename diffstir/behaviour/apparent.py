@@ -114,7 +114,7 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
                                                (problem.measured - fit.predicted)[problem.train], fit.theta[0],
                                                window.recording.sensor.resolution or 0.0)
     eta = math.exp(log_eta)
-    rate = effective_shear_rate(problem, ladder, eta, on_evaluation=count)
+    rate = effective_shear_rate(problem, eta, on_evaluation=count)
     return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,
                           log_std=log_std, baseline=baseline,
                           resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))),

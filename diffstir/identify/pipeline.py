@@ -23,7 +23,7 @@ from ..density import estimate_recording_density
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .initial import (
-    LADDER_VISCOSITIES, ViscosityLadder, effective_shear_rate, initial_model, mean_stirring_speed,
+    LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, initial_model, mean_stirring_speed,
 )
 from .models import FitModel
 from .optimise import FitResult, fit_model, noise_scale
@@ -137,6 +137,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     settings = {"models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
                 "max_iterations": max_iterations, "dim": config.dim, "dx": config.dx,
                 "sound_speed": config.sound_speed, "density": density_report["value"],
+                "shear_rate_probes": PROBE_INDEX_STEP,
                 "coarse": None if coarse is None else {"dx": coarse.dx, "sound_speed": coarse.sound_speed,
                                                         "dim": coarse.dim, "fine_iterations": fine_iterations}}
     state = _load_checkpoint(checkpoint, settings)
@@ -202,8 +203,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                                "sound_speed": stage_problem.config.sound_speed}
             save()
         if "effective_shear_rate" not in state:
-            ladder = ViscosityLadder(tuple(state["ladder"]["viscosities"]), tuple(state["ladder"]["mean_abs"]))
-            state["effective_shear_rate"] = effective_shear_rate(stage_problem, ladder, state["ladder"]["estimate"],
+            state["effective_shear_rate"] = effective_shear_rate(stage_problem, state["ladder"]["estimate"],
                                                                  on_evaluation=tracker.evaluation)
             save()
 

@@ -32,11 +32,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from diffstir.identify.initial import ViscosityLadder, effective_shear_rate, mean_stirring_speed
+from diffstir.identify.initial import PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
 from diffstir.identify.pipeline import density_estimate
 from diffstir.identify.problem import StirProblem, Windows
 from diffstir.lab import (
-    Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, read_truth, simulate_truth, stirring_programme,
+    Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth, simulate_truth,
+    stirring_programme,
 )
 from diffstir.mpm import SimConfig
 from diffstir.rheology import LAWS
@@ -48,6 +49,11 @@ PAIRS_FORMAT = "diffstir-rectifier-pairs/1"
 #: ln γ̇_eff is interpolated linearly in ln η (inertia makes γ̇_eff depend on the fluid, unlike Metzner-Otto's
 #: creeping-flow constant), and held constant outside.
 RATE_PROBES = (0.1, 1.0, 10.0)
+
+#: How γ̇_eff was measured (``diffstir.identify.initial.effective_shear_rate``). Shards measured otherwise are
+#: brought up to date when they resume: the group's rates are measured again and every pair's reference is
+#: recomputed from its stored law, without rerunning a truth simulation.
+SHEAR_RATE_METHOD = f"mean |reading|, power-law probes n = 1 +- {PROBE_INDEX_STEP}"
 
 
 @dataclass(frozen=True)
@@ -137,7 +143,7 @@ def draw_fluid(rng: np.random.Generator, design: PairDesign, shear_rate_of, dens
         if all(s.bounds[0] <= params[k] <= s.bounds[1] for k, s in LAWS[name].specs.items()):
             break
     else:
-        raise ValueError(f"pairs.design: no fluid within the laws' bounds in 1000 draws; check viscosity and laws")
+        raise ValueError("pairs.design: no fluid within the laws' bounds in 1000 draws; check viscosity and laws")
     fluid = Fluid(name=f"{name} {target:.4g} Pa s", density=density, law={"name": name, "params": params},
                   source="diffstir.rectifier.pairs.draw_fluid")
     return fluid, shear_rate
@@ -218,6 +224,7 @@ def run_shard(design: PairDesign, shard: int, out: str | Path, *, truth_config: 
     physics = HiddenPhysicsSpec.from_mapping(design.physics)
     done = _finished_fluids(paths.pairs, design.digest())
     group = _group(design, shard, paths.group, trajectory, density, physics, estimator_config, log)
+    _update_references(paths.pairs, group, log)
     ladder = ViscosityLadder(tuple(group["ladder"]["viscosities"]), tuple(group["ladder"]["mean_abs"]))
     failures = []
     for k in range(design.fluids_per_shard):
@@ -249,10 +256,9 @@ def run_shard(design: PairDesign, shard: int, out: str | Path, *, truth_config: 
 
 def _group(design, shard, path, trajectory, density, physics, estimator_config, log) -> dict:
     """The group's ladder and effective shear rates, simulated once and kept in ``path``."""
-    if path.exists():
-        group = json.loads(path.read_text())
-        if group.get("design") == design.digest():
-            return group
+    group = json.loads(path.read_text()) if path.exists() else {}
+    if group.get("design") == design.digest() and group.get("shear_rate_method") == SHEAR_RATE_METHOD:
+        return group
     started = time.perf_counter()
     # the group's sampling from a silent recording of the same path (no simulation): mid-step force times of any
     # step shorter than the sampling interval give the same sample times
@@ -261,16 +267,44 @@ def _group(design, shard, path, trajectory, density, physics, estimator_config, 
                              Rig(), estimator_config, physics, times, np.zeros((times.size, 2)), 1e-4, 0, [], True)
     template = read_truth(silent, SensorModel(**_fixed(design.sensor))).recording
     problem = _problem(template, estimator_config, density, design)
-    ladder = ViscosityLadder.simulate(problem)
-    rates = {str(eta): effective_shear_rate(problem, ladder, eta) for eta in RATE_PROBES}
+    if group.get("design") == design.digest():  # measured before γ̇_eff's definition changed: keep the ladder
+        ladder = ViscosityLadder(tuple(group["ladder"]["viscosities"]), tuple(group["ladder"]["mean_abs"]))
+    else:
+        ladder = ViscosityLadder.simulate(problem)
+    rates = {str(eta): effective_shear_rate(problem, eta) for eta in RATE_PROBES}
     group = {"design": design.digest(), "shard": shard, "density": density,
              "programme": dict(design.group(shard)[0]),
              "ladder": {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs)},
-             "effective_shear_rates": rates,
-             "times": problem.times.tolist(), "seconds": time.perf_counter() - started}
+             "effective_shear_rates": rates, "shear_rate_method": SHEAR_RATE_METHOD,
+             "times": problem.times.tolist(), "seconds": group.get("seconds", 0.0) + time.perf_counter() - started}
     path.write_text(json.dumps(group))
     log(f"shard {shard}: ladder and effective shear rate in {group['seconds']:.1f} s")
     return group
+
+
+def _update_references(path: Path, group: Mapping, log) -> None:
+    """Recompute the reference viscosity of every pair in ``path`` whose γ̇_eff was measured by another method
+    than ``group``'s: the fixed point η_ref = η_law(γ̇_eff(η_ref)) of its stored law (its fluid's truth simulation
+    and readings do not depend on γ̇_eff)."""
+    if not path.exists():
+        return
+    lines = [json.loads(x) for x in path.read_text(encoding="utf-8").splitlines() if x.strip()]
+    stale = [r for r in lines if r.get("shear_rate_method") != group["shear_rate_method"]]
+    if not stale:
+        return
+    for r in stale:
+        specs = LAWS[r["law"]].specs  # stored in float32: clip the round-off at a bound back inside it
+        params = {k: min(max(v, specs[k].bounds[0]), specs[k].bounds[1]) for k, v in r["law_parameters"].items()}
+        law = make_fluid_law({"name": r["law"], "params": params}).double()
+        eta = r["reference_viscosity"]
+        for _ in range(50):
+            rate = group_shear_rate(group, eta)
+            eta = float(law(torch.tensor([rate], dtype=torch.float64)).item())
+        r.update(reference_viscosity=eta, effective_shear_rate=rate, shear_rate_method=group["shear_rate_method"])
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in lines), encoding="utf-8")
+    tmp.replace(path)
+    log(f"shard {group['shard']}: references of {len(stale)} pairs recomputed at the group's effective shear rates")
 
 
 def group_shear_rate(group: Mapping, eta: float) -> float:
@@ -318,7 +352,7 @@ def _fluid_pairs(design, shard, k, fluid_id, group, ladder, trajectory, density,
             "preliminary_viscosity": ladder.estimate(problem),
             "reference_viscosity": reference,
             "resolves": ladder.resolves(problem.mean_reading()),
-            "effective_shear_rate": shear_rate,
+            "effective_shear_rate": shear_rate, "shear_rate_method": group["shear_rate_method"],
             "law": fluid.law["name"], "law_parameters": law.parameters_si(),
             "zero_shear_viscosity": float(law.zero_shear_viscosity().item()),
             "density": density, "density_estimate": rho["value"],

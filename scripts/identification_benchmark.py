@@ -1,0 +1,260 @@
+"""Identification accuracy on virtual-lab recordings the fitter has never seen (docs/accuracy.md).
+
+Two parts, each printing markdown tables:
+
+* ``newtonian``: a sweep of Newtonian viscosities (default 1 mPa·s to 10 Pa·s) stirred at one speed, identified with
+  the Newtonian law at the fitting defaults (coarse-to-fine, ``conf/sim/coarse2d.yaml`` then ``slice2d.yaml``) from a
+  truth simulated on ``conf/lab/sim/truth2d.yaml`` (2 mm cells, finer than the fit). Per fluid: the density and
+  the viscosity with their 95 % intervals, the error, whether the interval holds the truth, and whether the
+  recording resolves viscosity at all (``resolvable``: a doubling of η must change the reading by more than the
+  noise and the sensor's resolution; where it does not, the report says "not identifiable").
+* ``laws``: fluids of every non-Newtonian class (presets of ``conf/lab/fluid`` or ``EXTRA_FLUIDS``) stirred at three
+  speeds, identified with every
+  default law and the corotated baseline: the paper's Tables II-IV in shape (parameters per law with the truth, the
+  force deviation per law, our estimate against the baseline's) and the law family selected. These fluids run on
+  the coarse grids of the behaviour benchmark (truth ``--law-truth-dx``, fit ``coarse2d`` only), because a
+  yield-stress fluid's capped viscosity makes a 2 mm truth hours long on two cores.
+
+Every sensor reading goes through the paper's sensor preset (``conf/lab/sensor/paper.yaml``) with seed
+``--seed`` + case index. One torch thread.
+
+    python scripts/identification_benchmark.py --part newtonian [--viscosities 0.001 0.01 ...] [--out DIR]
+    python scripts/identification_benchmark.py --part laws [--fluids cs24 ketchup ...] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+import yaml
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from diffstir.identify import identify
+from diffstir.lab import Fluid, SensorModel, make_fluid_law, stirring_programme, synthesise
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+NEWTONIAN_PROGRAMME = [{"speed": 0.1, "duration": 1.3}]                  # m/s, s: 15 mm circle, period 0.94 s
+LAW_PROGRAMME = [{"speed": s, "duration": 0.6} for s in (0.03, 0.06, 0.12)]  # m/s, s: a factor 4 in speed
+RADIUS, RAMP = 0.015, 0.2  # m, s
+#: laws with a yield stress; every other law's class is read off its flow index (``law_class``)
+YIELD_LAWS = {"herschel_bulkley", "bingham"}
+
+
+def sim(path: str):
+    return instantiate(OmegaConf.load(CONF / path))
+
+
+def sensor_preset(name: str) -> SensorModel:
+    return SensorModel(**yaml.safe_load((CONF / "lab" / "sensor" / f"{name}.yaml").read_text()))
+
+
+#: fluids beside the presets: classes the presets lack at this stir's shear rates (the paper's jam thins over
+#: 0.1-100 1/s with η0 = 8 Pa·s, too slow to simulate here; its corn starches thicken only above 40 1/s)
+EXTRA_FLUIDS = {
+    "jam_like": Fluid("jam_like", 1330.0, {"name": "carreau", "params": {"eta0": 2.0, "eta_inf": 0.05, "lam": 1.0,
+                                                                         "n": 0.4}}),
+    "thickening": Fluid("thickening", 1150.0, {"name": "power_law", "params": {"k": 0.3, "n": 1.3}}),
+}
+
+
+def fluid_preset(name: str) -> Fluid:
+    if name in EXTRA_FLUIDS:
+        return EXTRA_FLUIDS[name]
+    spec = yaml.safe_load((CONF / "lab" / "fluid" / f"{name}.yaml").read_text())
+    return Fluid(name=name, density=spec["density"], law=spec["law"])
+
+
+def law_class(name: str, params: dict, ci95: dict | None = None) -> str:
+    """The behaviour class of a fitted law: yield stress when its τ_y's 95 % interval excludes 0 (or, without an
+    interval, τ_y > 0), otherwise by its flow index (shear-thinning below 1, thickening above), Newtonian when the
+    index's interval holds 1 or the law has no index."""
+    if name in YIELD_LAWS and params.get("tau_y", 0.0) > 0.0:
+        lo = (ci95 or {}).get("tau_y", [params["tau_y"]])[0]
+        if lo is not None and lo > 0.0:
+            return "yield_stress"
+    n = params.get("n")
+    if n is None:
+        return "newtonian"
+    lo, hi = (ci95 or {}).get("n", [n, n])
+    if lo is not None and hi is not None and lo <= 1.0 <= hi:
+        return "newtonian"
+    return "shear_thinning" if n < 1.0 else "shear_thickening"
+
+
+def true_class(law: dict, probed: tuple[float, float]) -> str:
+    """The class a fluid shows over the probed shear rates [1/s]: yield stress for a law with τ_y > 0, otherwise
+    by the chord slope d ln η / d ln γ̇ across the band (|slope| < 0.05: Newtonian there)."""
+    if law["name"] in YIELD_LAWS and law["params"].get("tau_y", 0.0) > 0.0:
+        return "yield_stress"
+    eta = make_fluid_law(law).double()(torch.tensor(probed, dtype=torch.float64)).detach()
+    slope = float(torch.log(eta[1] / eta[0]) / math.log(probed[1] / probed[0]))
+    return "newtonian" if abs(slope) < 0.05 else "shear_thinning" if slope < 0 else "shear_thickening"
+
+
+def save(path: Path | None, rows: list[dict]) -> None:
+    """Write the rows so far to ``path`` (JSON): a rerun of the same command skips them."""
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(rows, indent=1, default=float))
+
+
+def finished(path: Path | None) -> list[dict]:
+    return json.loads(path.read_text()) if path is not None and path.exists() else []
+
+
+def newtonian_part(args) -> list[dict]:
+    truth_config, fine, coarse = sim("lab/sim/truth2d.yaml"), sim("sim/slice2d.yaml"), sim("sim/coarse2d.yaml")
+    trajectory = stirring_programme(NEWTONIAN_PROGRAMME, radius=RADIUS, ramp_time=RAMP)
+    sensor, rows, done = sensor_preset(args.sensor), [], finished(args.out)
+    print("| η true [Pa·s] | ρ true | ρ [95 % CI] | η fitted [95 % CI] | error | CI holds truth | resolvable | s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for i, eta in enumerate(args.viscosities):
+        if any(r["eta_true"] == eta for r in done):
+            rows.append(next(r for r in done if r["eta_true"] == eta))
+            continue
+        t0 = time.perf_counter()
+        density = args.density
+        fluid = Fluid(name=f"newtonian {eta:g}", density=density, law={"name": "newtonian", "params": {"eta": eta}})
+        lab = synthesise(fluid, trajectory, sim_config=truth_config, sensor=sensor, seed=args.seed + i)
+        result = identify(lab.recording, ("newtonian",), config=fine, coarse=coarse, baseline=False, window=None,
+                          fine_iterations=args.fine_iterations, progress=False)
+        law = result.summary()["laws"]["newtonian"]
+        fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"]
+        rho = result.density
+        row = {"eta_true": eta, "eta": fitted, "ci95": [lo, hi], "error": fitted / eta - 1.0,
+               "covered": holds(lo, hi, eta), "resolvable": result.resolvable["viscosity"],
+               "density_true": density, "density": rho["value"], "density_ci95": rho["ci95"],
+               "density_covered": holds(*rho["ci95"], density),
+               "seconds": time.perf_counter() - t0}
+        rows.append(row)
+        save(args.out, rows)
+        verdict = "" if row["resolvable"] else " (not identifiable)"
+        print(f"| {eta:g} | {density:g} | {rho['value']:.1f} [{rho['ci95'][0]:.1f}, {rho['ci95'][1]:.1f}] | "
+              f"{fitted:.4g} [{_fmt(lo)}, {_fmt(hi)}]{verdict} | {100 * row['error']:+.1f} % | "
+              f"{'yes' if row['covered'] else 'no'} | {'yes' if row['resolvable'] else 'no'} | "
+              f"{row['seconds']:.0f} |", flush=True)
+    return rows
+
+
+def laws_part(args) -> list[dict]:
+    coarse = sim("sim/coarse2d.yaml")
+    truth_config = replace(coarse, dx=args.law_truth_dx)
+    trajectory = stirring_programme(LAW_PROGRAMME, radius=RADIUS, ramp_time=RAMP)
+    sensor, rows, done = sensor_preset(args.sensor), [], finished(args.out)
+    for i, name in enumerate(args.fluids):
+        if any(r["fluid"] == name for r in done):
+            rows.append(next(r for r in done if r["fluid"] == name))
+            continue
+        t0 = time.perf_counter()
+        fluid = fluid_preset(name)
+        lab = synthesise(fluid, trajectory, sim_config=truth_config, sensor=sensor, seed=args.seed + 100 + i)
+        result = identify(lab.recording, config=coarse, baseline=True, window=None,
+                          max_iterations=args.iterations, progress=False)
+        summary = result.summary()
+        law = fluid.make_law().double()
+        rate = summary["apparent_viscosity"]["effective_shear_rate"]
+        eta_true = float(law(torch.tensor([rate], dtype=torch.float64)).item())
+        selected = summary["selected"]
+        params = summary["laws"][selected]["params"]
+        row = {"fluid": name, "law": fluid.law, "true_class": true_class(fluid.law, summary["shear_rate_range"]),
+               "shear_rate_range": summary["shear_rate_range"], "selected": selected,
+               "class": law_class(selected, params, summary["laws"][selected]["ci95"]),
+               "effective_shear_rate": rate, "eta_true": eta_true,
+               "eta": summary["apparent_viscosity"]["at_effective_shear_rate"],
+               "eta_ci95": summary["apparent_viscosity"]["at_effective_shear_rate_ci95"],
+               "baseline_eta": summary["baseline"]["apparent_viscosity"]["at_effective_shear_rate"],
+               "laws": {k: {"params": v["params"], "ci95": v["ci95"], "loss": v["loss"],
+                            "identifiable": v["identifiable"], "bic": v["bic"]} for k, v in summary["laws"].items()},
+               "baseline": {"params": summary["baseline"]["params"], "loss": summary["baseline"]["loss"]},
+               "lowest_loss": summary["selection"].get("lowest_loss"),
+               "density_true": fluid.density, "density": summary["density"]["value"],
+               "density_ci95": summary["density"]["ci95"], "seconds": time.perf_counter() - t0}
+        row["error"] = row["eta"] / eta_true - 1.0
+        row["baseline_error"] = row["baseline_eta"] / eta_true - 1.0
+        rows.append(row)
+        save(args.out, rows)
+        print(f"\n### {name}: {fluid.law['name']} {fluid.law['params']}, ρ {fluid.density} kg/m³ "
+              f"({row['seconds']:.0f} s)\n")
+        print("| law | parameters (SI) [95 % CI] | identifiable | loss [N] | BIC |")
+        print("|---|---|---|---|---|")
+        for k, v in row["laws"].items():
+            text = ", ".join(f"{p} {x:.4g} [{_fmt(v['ci95'][p][0])}, {_fmt(v['ci95'][p][1])}]"
+                             for p, x in v["params"].items())
+            ident = ", ".join(p for p, ok in v["identifiable"].items() if not ok) or "all"
+            print(f"| {k}{' (selected)' if k == selected else ''} | {text} | "
+                  f"{'all' if ident == 'all' else 'not ' + ident} | {v['loss']:.4g} | {v['bic']:.1f} |")
+        b = row["baseline"]
+        print("| corotated baseline | " + ", ".join(f"{p} {x:.4g}" for p, x in b["params"].items())
+              + f" | - | {b['loss']:.4g} | - |")
+        print(f"\nclass {row['class']} (true {row['true_class']}); γ̇_eff {rate:.3g} 1/s; η(γ̇_eff) true "
+              f"{eta_true:.4g}, ours {row['eta']:.4g} [{row['eta_ci95'][0]:.4g}, {row['eta_ci95'][1]:.4g}] "
+              f"({100 * row['error']:+.1f} %), corotated {row['baseline_eta']:.4g} "
+              f"({100 * row['baseline_error']:+.1f} %); density {row['density']:.1f} "
+              f"[{row['density_ci95'][0]:.1f}, {row['density_ci95'][1]:.1f}]", flush=True)
+    print("\n| fluid | true class | selected (class) | η(γ̇_eff) true | ours | error | corotated | error |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['fluid']} | {r['true_class']} | {r['selected']} ({r['class']}) | {r['eta_true']:.4g} | "
+              f"{r['eta']:.4g} | {100 * r['error']:+.1f} % | {r['baseline_eta']:.4g} | "
+              f"{100 * r['baseline_error']:+.1f} % |")
+    return rows
+
+
+def holds(lo: float | None, hi: float | None, value: float) -> bool:
+    """Whether [lo, hi] holds ``value``; a bound the report leaves null (it overflowed) is unbounded."""
+    return (lo is None or lo <= value) and (hi is None or value <= hi)
+
+
+def _fmt(x) -> str:
+    return "-" if x is None else f"{x:.3g}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--part", choices=["newtonian", "laws"], required=True)
+    parser.add_argument("--viscosities", type=float, nargs="+", default=[0.001, 0.01, 0.05, 0.2, 1.0, 3.0, 10.0],
+                        help="Pa s")
+    parser.add_argument("--density", type=float, default=1000.0, help="kg/m^3, the Newtonian sweep's")
+    parser.add_argument("--fluids", nargs="+", default=["jam_like", "thickening", "ketchup"],
+                        help="presets in conf/lab/fluid, or jam_like, thickening")
+    parser.add_argument("--law-truth-dx", type=float, default=0.004, help="m, the law part's truth cells")
+    parser.add_argument("--iterations", type=int, default=6, help="Gauss-Newton iterations per law")
+    parser.add_argument("--fine-iterations", type=int, default=2, help="Broyden iterations on the fine grid")
+    parser.add_argument("--sensor", default="paper", help="preset in conf/lab/sensor")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None,
+                        help="write the rows as JSON here after every case; a rerun skips the cases it holds")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average "
+          f"{os.getloadavg()[0]:.1f} at start, torch {torch.__version__}, 1 thread\n")
+    rows = newtonian_part(args) if args.part == "newtonian" else laws_part(args)
+    if args.part == "newtonian":
+        resolved = [r for r in rows if r["resolvable"]]
+        within = [r for r in resolved if abs(r["error"]) <= 0.10]
+        print(f"\nresolvable: {len(resolved)}/{len(rows)}; within 10 %: {len(within)}/{len(resolved)}; "
+              f"viscosity intervals holding the truth: {sum(r['covered'] for r in rows)}/{len(rows)}; "
+              f"density within 1 %: {sum(abs(r['density'] / r['density_true'] - 1) <= 0.01 for r in rows)}/"
+              f"{len(rows)}, intervals holding it: {sum(r['density_covered'] for r in rows)}/{len(rows)}")
+    else:
+        print(f"\nfamily right: {sum(r['class'] == r['true_class'] for r in rows)}/{len(rows)}; η(γ̇_eff) within "
+              f"10 %: {sum(abs(r['error']) <= 0.10 for r in rows)}/{len(rows)} (corotated "
+              f"{sum(abs(r['baseline_error']) <= 0.10 for r in rows)}/{len(rows)}); intervals holding the truth: "
+              f"{sum(holds(*r['eta_ci95'], r['eta_true']) for r in rows)}/{len(rows)}")
+    print(f"{time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
