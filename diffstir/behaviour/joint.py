@@ -34,12 +34,15 @@ class JointProblem:
         problems: one ``StirProblem`` per recording; ``masks`` its samples inside a window.
         measured: measured readings in the windows [N]; ``train`` all True (nothing is held out).
         recording: the first recording (its sensor's resolution sets the robust loss's noise floor).
+        config, density: the simulation settings and the fluid's density [kg/m³] shared by every problem (the
+            fit bounds a model by the simulator's limits from them).
     """
 
     def __init__(self, windows: list[SpeedWindow], config: SimConfig, density: float):
         by_recording: dict[int, list[SpeedWindow]] = {}
         for w in windows:
             by_recording.setdefault(id(w.recording), []).append(w)
+        self.config, self.density = config, float(density)
         self.problems, self.masks = [], []
         for group in by_recording.values():
             start, end = min(w.start for w in group), max(w.end for w in group)
