@@ -4,25 +4,21 @@ line and the laws fitted to all speeds)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..identify.report import format_bound
 from ..plots import pyplot, save_figure, viscosity_band
+from ..report_files import write_summary
 from .pipeline import Behaviour
 
 
 def write_behaviour_report(result: Behaviour, out: str | Path) -> dict[str, Path]:
     """Write report.json, report.md and the two plots into ``out``; return the paths."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = result.summary()
-    paths = {"json": out / "report.json", "md": out / "report.md"}
-    paths["json"].write_text(json.dumps(summary, indent=2) + "\n")
-    paths["md"].write_text(markdown(summary))
-    paths.update(plot(result, out))
+    paths = write_summary(out, "report", summary, markdown(summary))
+    paths.update(plot(result, Path(out)))
     return paths
 
 

@@ -4,13 +4,13 @@ mismatch is; ``before_after.png``: measured versus simulated before and after mo
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from ..plots import pyplot, save_figure
+from ..report_files import write_summary
 from .pipeline import Diagnosis
 
 PHASE_COLOURS = {"start-up": "tab:green", "speed change": "tab:orange", "reversal": "tab:purple", "stop": "0.75"}
@@ -18,22 +18,10 @@ PHASE_COLOURS = {"start-up": "tab:green", "speed change": "tab:orange", "reversa
 
 def write_diagnosis(diag: Diagnosis, out: str | Path) -> dict[str, Path]:
     """Write diagnosis.json, diagnosis.md, residual.png, before_after.png and candidates.png into ``out``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = diag.summary()
-    paths = {"json": out / "diagnosis.json", "md": out / "diagnosis.md"}
-    paths["json"].write_text(json.dumps(summary, indent=2, default=_json) + "\n")
-    paths["md"].write_text(markdown(summary))
-    paths.update(plot_all(diag, out))
+    paths = write_summary(out, "diagnosis", summary, markdown(summary))
+    paths.update(plot_all(diag, Path(out)))
     return paths
-
-
-def _json(value):
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"diagnosis: {type(value).__name__} is not JSON-serialisable")
 
 
 def _num(value, fmt=".3g") -> str:

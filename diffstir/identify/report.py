@@ -2,24 +2,20 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from .pipeline import Identification
 from ..plots import pyplot, save_figure, viscosity_band
+from ..report_files import write_summary
 
 
 def write_report(result: Identification, out: str | Path) -> dict[str, Path]:
     """Write report.json, report.md, forces.png, flow_curves.png and losses.png into ``out``; return the paths."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = result.summary()
-    paths = {"json": out / "report.json", "md": out / "report.md"}
-    paths["json"].write_text(json.dumps(summary, indent=2) + "\n")
-    paths["md"].write_text(markdown(summary))
-    paths.update(plot_all(result, out))
+    paths = write_summary(out, "report", summary, markdown(summary))
+    paths.update(plot_all(result, Path(out)))
     return paths
 
 

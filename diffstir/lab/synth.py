@@ -9,7 +9,6 @@ rod's immersion depth [m] to get the force on the rod [N] (an extruded slice: no
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping
@@ -27,6 +26,7 @@ from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import (
     CupGeometry, DensityMeasurement, Recording, RodGeometry, load_recording, save_recording, validate_recording,
 )
+from diffstir.report_files import to_json
 from diffstir.rig import Rig
 from diffstir.trajectory import Trajectory
 
@@ -214,14 +214,8 @@ def write_lab_recording(lab: LabRecording, path: str | Path, *, overwrite: bool 
     save_recording(lab.recording, path, overwrite=overwrite)
     load_recording(path)
     tmp = truth_file.with_name(f".{truth_file.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(lab.truth, indent=2, default=_json_default) + "\n", encoding="utf-8")
+    tmp.write_text(to_json(lab.truth), encoding="utf-8")
     os.replace(tmp, truth_file)
     return path, truth_file
 
 
-def _json_default(value):
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, (tuple, np.ndarray)):
-        return list(value)
-    raise TypeError(f"truth: {type(value).__name__} is not JSON-serialisable")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from ..behaviour import ViscosityPoint, combined_density
 from ..mpm import SimConfig
 from ..plots import pyplot, save_figure
 from ..recording import Recording
+from ..report_files import write_summary
 from .rule import blend_range, implied_alpha
 from .track import Approach, fit_approach, track_viscosity
 
@@ -74,15 +76,10 @@ def analyse_mixing(recording: Recording, *, config: SimConfig, viscosities: tupl
 def write_mixing_report(result: Mixing, out) -> dict:
     """Write report.json and time_course.png (η(t) with its 95 % band, the fitted approach, the time to
     homogeneity and the Lederer-Roegiers range) into ``out``; return the paths."""
-    import json
-    from pathlib import Path
-
     plt = pyplot()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = result.summary()
-    paths = {"json": out / "report.json", "time_course": out / "time_course.png"}
-    paths["json"].write_text(json.dumps(summary, indent=2) + "\n")
+    paths = write_summary(out, "report", summary)
+    paths["time_course"] = Path(out) / "time_course.png"
     t = result.times
     eta = np.array([p.viscosity for p in result.points])
     lo, hi = np.array([p.ci95 for p in result.points]).T

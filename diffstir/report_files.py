@@ -1,0 +1,36 @@
+"""The JSON and markdown files every report writes (identification, behaviour, mixing, diagnosis, lab truth)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+
+def json_default(value):
+    """``json.dumps``'s ``default`` for the numpy scalars and arrays a summary may hold."""
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
+
+
+def to_json(summary: Mapping) -> str:
+    """``summary`` as indented JSON text with a final newline."""
+    return json.dumps(summary, indent=2, default=json_default) + "\n"
+
+
+def write_summary(out: str | Path, stem: str, summary: Mapping, markdown: str | None = None) -> dict[str, Path]:
+    """Write ``out``/``stem``.json (and ``stem``.md when ``markdown`` is given), creating ``out``; return the
+    paths under the keys ``json`` and ``md``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"json": out / f"{stem}.json"}
+    paths["json"].write_text(to_json(summary))
+    if markdown is not None:
+        paths["md"] = out / f"{stem}.md"
+        paths["md"].write_text(markdown)
+    return paths
