@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rheology import LAWS
+from ..rheology import LAWS, within_bounds
 from .models import FitModel
 from .optimise import Readings
 from .problem import StirProblem
@@ -144,6 +144,4 @@ def initial_model(name: str, eta_n: float, shear_rate: float, dt: float | None =
     }
     if name not in guesses:
         raise ValueError(f"model {name!r} is unknown; choose from {sorted(LAWS) + ['corotated']}")
-    bounds = LAWS[name].specs
-    values = {key: min(max(v, bounds[key].bounds[0]), bounds[key].bounds[1]) for key, v in guesses[name].items()}
-    return FitModel.named(name, **values)
+    return FitModel.named(name, **within_bounds(name, guesses[name]))

@@ -40,7 +40,7 @@ from diffstir.lab import (
     stirring_programme,
 )
 from diffstir.mpm import SimConfig
-from diffstir.rheology import LAWS
+from diffstir.rheology import LAWS, within_bounds
 from diffstir.rig import Rig
 
 PAIRS_FORMAT = "diffstir-rectifier-pairs/1"
@@ -293,8 +293,7 @@ def _update_references(path: Path, group: Mapping, log) -> None:
     if not stale:
         return
     for r in stale:
-        specs = LAWS[r["law"]].specs  # stored in float32: clip the round-off at a bound back inside it
-        params = {k: min(max(v, specs[k].bounds[0]), specs[k].bounds[1]) for k, v in r["law_parameters"].items()}
+        params = within_bounds(r["law"], r["law_parameters"])  # stored in float32: round-off may cross a bound
         law = make_fluid_law({"name": r["law"], "params": params}).double()
         eta = r["reference_viscosity"]
         for _ in range(50):

@@ -23,6 +23,7 @@ from diffstir.rheology.laws import (
     RheologyLaw,
     Tabulated,
     make_law,
+    within_bounds,
 )
 
 __all__ = [
@@ -43,4 +44,5 @@ __all__ = [
     "load_flow_curves",
     "make_law",
     "rank_laws",
+    "within_bounds",
 ]

@@ -441,6 +441,13 @@ def make_law(name: str, **params) -> RheologyLaw:
     return LAWS[name](**params)
 
 
+def within_bounds(name: str, params: Mapping[str, float]) -> dict[str, float]:
+    """``params`` [SI] of the law registered as ``name``, each clipped into its parameter's default bounds (for a
+    rough initial guess, or a value stored in float32 whose round-off crossed a bound)."""
+    specs = LAWS[name].specs
+    return {key: min(max(float(v), specs[key].bounds[0]), specs[key].bounds[1]) for key, v in params.items()}
+
+
 def _one_minus_exp_ratio(x: Tensor) -> Tensor:
     """(1 - exp(-x)) / x for x >= 0, equal to 1 at x = 0, with exact values and gradients near 0.
 
