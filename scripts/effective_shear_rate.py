@@ -25,7 +25,7 @@ from diffstir.identify.initial import characteristic_shear_rate, effective_shear
 from diffstir.identify.models import FitModel
 from diffstir.identify.optimise import Readings
 from diffstir.identify.problem import StirProblem, Windows
-from diffstir.lab import make_fluid_law
+from diffstir.lab import make_fluid_law, truth_path
 from diffstir.recording import load_recording
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,7 +38,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     rec = load_recording(args.recording)
-    truth = json.loads(args.recording.with_name(args.recording.name + ".truth.json").read_text())
+    truth = json.loads(truth_path(args.recording).read_text())
     config = instantiate(OmegaConf.load(ROOT / "conf/sim/coarse2d.yaml"))
     problem = StirProblem(rec, config, truth["fluid"]["density"], Windows.of(rec, 2.0, 0.25))
     rate0 = characteristic_shear_rate(problem)
@@ -58,7 +58,8 @@ def main() -> None:
     s = math.log(f_h / f_n) / 0.15
     for n in (0.5, 0.7, 0.85):
         f_p = mean("power_law", k=eta_eq * rate0 ** (1 - n), n=n)
-        print(f"| single power law, n = {n} | {eta_eq:.4g} | {rate0 * math.exp(math.log(f_p / f_n) / s / (n - 1)):.3g} |")
+        rate = rate0 * math.exp(math.log(f_p / f_n) / s / (n - 1))
+        print(f"| single power law, n = {n} | {eta_eq:.4g} | {rate:.3g} |")
     for eta in [eta_eq] + args.viscosities:
         print(f"| pair n = 1 ± 0.15 (identify) | {eta:.4g} | {effective_shear_rate(problem, eta):.3g} |", flush=True)
     rate = brentq(lambda g: float(law(torch.tensor([g], dtype=torch.float64)).detach()) - eta_eq, 1e-3, 1e3)

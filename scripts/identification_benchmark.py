@@ -47,10 +47,6 @@ CONF = ROOT / "conf"
 NEWTONIAN_PROGRAMME = [{"speed": 0.1, "duration": 1.3}]                  # m/s, s: 15 mm circle, period 0.94 s
 LAW_PROGRAMME = [{"speed": s, "duration": 0.6} for s in (0.03, 0.06, 0.12)]  # m/s, s: a factor 4 in speed
 RADIUS, RAMP = 0.015, 0.2  # m, s
-#: laws with a yield stress; every other law's class is read off its flow index (``law_class``)
-YIELD_LAWS = {"herschel_bulkley", "bingham"}
-
-
 def sim(path: str):
     return instantiate(OmegaConf.load(CONF / path))
 
@@ -71,15 +67,14 @@ EXTRA_FLUIDS = {
 def fluid_preset(name: str) -> Fluid:
     if name in EXTRA_FLUIDS:
         return EXTRA_FLUIDS[name]
-    spec = yaml.safe_load((CONF / "lab" / "fluid" / f"{name}.yaml").read_text())
-    return Fluid(name=name, density=spec["density"], law=spec["law"])
+    return Fluid.from_mapping(yaml.safe_load((CONF / "lab" / "fluid" / f"{name}.yaml").read_text()))
 
 
 def law_class(name: str, params: dict, ci95: dict | None = None) -> str:
     """The behaviour class of a fitted law: yield stress when its τ_y's 95 % interval excludes 0 (or, without an
     interval, τ_y > 0), otherwise by its flow index (shear-thinning below 1, thickening above), Newtonian when the
     index's interval holds 1 or the law has no index."""
-    if name in YIELD_LAWS and params.get("tau_y", 0.0) > 0.0:
+    if params.get("tau_y", 0.0) > 0.0:
         lo = (ci95 or {}).get("tau_y", [params["tau_y"]])[0]
         if lo is not None and lo > 0.0:
             return "yield_stress"
@@ -95,7 +90,7 @@ def law_class(name: str, params: dict, ci95: dict | None = None) -> str:
 def true_class(law: dict, probed: tuple[float, float]) -> str:
     """The class a fluid shows over the probed shear rates [1/s]: yield stress for a law with τ_y > 0, otherwise
     by the chord slope d ln η / d ln γ̇ across the band (|slope| < 0.05: Newtonian there)."""
-    if law["name"] in YIELD_LAWS and law["params"].get("tau_y", 0.0) > 0.0:
+    if law["params"].get("tau_y", 0.0) > 0.0:
         return "yield_stress"
     eta = make_fluid_law(law).double()(torch.tensor(probed, dtype=torch.float64)).detach()
     slope = float(torch.log(eta[1] / eta[0]) / math.log(probed[1] / probed[0]))

@@ -36,12 +36,31 @@ def preset(group: str, name: str) -> dict:
     return yaml.safe_load((ROOT / "conf" / "lab" / group / f"{name}.yaml").read_text())
 
 
+def plot_effects(base, recordings: dict, kind: str, base_label: str, colour: str, reference: float, *,
+                 row_height: float, title: str, path: Path) -> None:
+    """One panel per recording against the effect-free ``base``; print each one's mean |reading| [N] and its
+    change from ``reference`` as a table row labelled ``kind``."""
+    fig, axes = plt.subplots(len(recordings), 1, figsize=(8, row_height * len(recordings)), sharex=True)
+    for ax, (name, rec) in zip(axes, recordings.items()):
+        ax.plot(base.t, base.force, "k-", lw=0.8, label=base_label)
+        ax.plot(rec.t, rec.force, f"{colour}-", lw=0.8, label=name)
+        ax.legend(loc="upper right", fontsize=7)
+        ax.set_ylabel("F [N]")
+        mean = float(np.mean(np.abs(rec.force)))
+        print(f"| {kind}: {name} | {mean:.4f} | {100 * (mean / reference - 1):+.1f} % |")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("docs/figures"))
     parser.add_argument("--dx", type=float, default=0.004, help="truth cell size [m]")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    args.out.mkdir(parents=True, exist_ok=True)
     config = replace(SimConfig(dim=2), dx=args.dx)
     fluid = Fluid.from_mapping(preset("fluid", "castor_oil"))
     trajectory = stirring_programme(SEGMENTS, radius=0.015, ramp_time=0.2)
@@ -59,36 +78,19 @@ def main() -> None:
     physics = {name: HiddenPhysicsSpec.from_mapping(preset("physics", name))
                for name in ("thixotropic", "viscoelastic", "wall_slip", "warming")}
 
-    fig, axes = plt.subplots(len(sensor_effects), 1, figsize=(8, 1.6 * len(sensor_effects)), sharex=True)
     print("| effect | mean abs reading [N] | change |\n|---|---|---|")
     reference = float(np.mean(np.abs(base.force)))
     print(f"| none (ideal sensor) | {reference:.4f} | - |")
-    for ax, (name, change) in zip(axes, sensor_effects.items()):
-        rec = read_truth(truth, SensorModel(**{**ideal.as_dict(), **change}), seed=1).recording
-        ax.plot(base.t, base.force, "k-", lw=0.8, label="ideal sensor")
-        ax.plot(rec.t, rec.force, "C1-", lw=0.8, label=name)
-        ax.legend(loc="upper right", fontsize=7)
-        ax.set_ylabel("F [N]")
-        mean = float(np.mean(np.abs(rec.force)))
-        print(f"| sensor: {name} | {mean:.4f} | {100 * (mean / reference - 1):+.1f} % |")
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("castor oil, stir / rest / reverse: each sensor effect alone")
-    fig.tight_layout()
-    fig.savefig(args.out / "lab_sensor_effects.png", dpi=110)
-
-    fig, axes = plt.subplots(len(physics), 1, figsize=(8, 1.8 * len(physics)), sharex=True)
-    for ax, (name, spec) in zip(axes, physics.items()):
-        rec = read_truth(simulate_truth(fluid, trajectory, sim_config=config, physics=spec), ideal).recording
-        ax.plot(base.t, base.force, "k-", lw=0.8, label="no hidden physics")
-        ax.plot(rec.t, rec.force, "C0-", lw=0.8, label=name)
-        ax.legend(loc="upper right", fontsize=7)
-        ax.set_ylabel("F [N]")
-        mean = float(np.mean(np.abs(rec.force)))
-        print(f"| physics: {name} | {mean:.4f} | {100 * (mean / reference - 1):+.1f} % |")
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("castor oil, stir / rest / reverse: each hidden-physics preset (ideal sensor)")
-    fig.tight_layout()
-    fig.savefig(args.out / "lab_physics_effects.png", dpi=110)
+    sensed = {name: read_truth(truth, SensorModel(**{**ideal.as_dict(), **change}), seed=1).recording
+              for name, change in sensor_effects.items()}
+    plot_effects(base, sensed, "sensor", "ideal sensor", "C1", reference, row_height=1.6,
+                 title="castor oil, stir / rest / reverse: each sensor effect alone",
+                 path=args.out / "lab_sensor_effects.png")
+    hidden = {name: read_truth(simulate_truth(fluid, trajectory, sim_config=config, physics=spec), ideal).recording
+              for name, spec in physics.items()}
+    plot_effects(base, hidden, "physics", "no hidden physics", "C0", reference, row_height=1.8,
+                 title="castor oil, stir / rest / reverse: each hidden-physics preset (ideal sensor)",
+                 path=args.out / "lab_physics_effects.png")
     print(f"\n{time.perf_counter() - started:.0f} s; wrote {args.out}/lab_sensor_effects.png and "
           f"lab_physics_effects.png")
 
