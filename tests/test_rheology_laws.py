@@ -224,6 +224,15 @@ def test_set_parameters_is_atomic():
     assert law.parameters_si() == before
 
 
+def test_a_value_read_back_on_a_bound_is_the_bound():
+    # a fit that ends on a bound reads its value back through float32 parameters, a few ulps outside
+    law = Carreau(bounds={"eta0": (1.0, 10.0)})
+    law.set_parameters_si(eta0=float(np.float32(10.0) * (1 + 2 * np.finfo(np.float32).eps)))
+    assert law.parameters_si()["eta0"] == pytest.approx(10.0, rel=1e-6)
+    with pytest.raises(ValueError, match="outside its bounds"):
+        law.set_parameters_si(eta0=10.01)  # a real excursion is still refused
+
+
 def test_bounds_override():
     law = Carreau(eta0=5.0, bounds={"eta0": (1.0, 10.0)})
     assert law.bounds()["eta0"] == (1.0, 10.0)

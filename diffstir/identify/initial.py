@@ -127,21 +127,44 @@ def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None)
     return float(min(max(rate, 0.1 * rate0), 10.0 * rate0))
 
 
-def initial_model(name: str, eta_n: float, shear_rate: float, dt: float | None = None) -> FitModel:
+#: Shares of the stress at γ̇_eff that a yield-stress law's start gives its yield stress: that of a paste and that
+#: of a liquid near its Newtonian limit. On the bundled (Carreau) example the paste's start read seven times the
+#: Newtonian fit's loss, and the fit ran to a nearly plastic index; ``initial_models`` offers both.
+YIELD_SHARES = (0.2, 0.02)
+
+
+def initial_model(name: str, eta_n: float, shear_rate: float, dt: float | None = None,
+                  yield_share: float = YIELD_SHARES[0]) -> FitModel:
     """A model named ``name`` whose apparent viscosity at ``shear_rate`` [1/s] is ``eta_n`` [Pa·s], with a
-    typical shape (shear-thinning index 0.6, time constant 1/γ̇_eff, a yield stress carrying a fifth of the
-    stress); values are clipped into the law's bounds."""
+    typical shape (shear-thinning index 0.6, time constant 1/γ̇_eff, a yield stress carrying ``yield_share`` of
+    the stress); values are clipped into the law's bounds."""
     if name == "corotated":
         return FitModel.named("corotated", dt=dt, shear_modulus=eta_n / dt)
-    g = shear_rate
+    g, y = shear_rate, yield_share
     guesses = {
         "newtonian": dict(eta=eta_n),
         "power_law": dict(k=eta_n * g ** 0.4, n=0.6),
         "carreau": dict(eta0=eta_n * 2 ** 0.2, eta_inf=eta_n * 1e-3, lam=1.0 / g, n=0.6),
         "cross": dict(eta0=2.0 * eta_n, eta_inf=eta_n * 1e-3, lam=1.0 / g, n=0.8),
-        "herschel_bulkley": dict(tau_y=0.2 * eta_n * g, k=0.8 * eta_n * g ** 0.2, n=0.8),
-        "bingham": dict(tau_y=0.2 * eta_n * g, eta_p=0.8 * eta_n),
+        "herschel_bulkley": dict(tau_y=y * eta_n * g, k=(1.0 - y) * eta_n * g ** 0.2, n=0.8),
+        "bingham": dict(tau_y=y * eta_n * g, eta_p=(1.0 - y) * eta_n),
     }
     if name not in guesses:
         raise ValueError(f"model {name!r} is unknown; choose from {sorted(LAWS) + ['corotated']}")
     return FitModel.named(name, **within_bounds(name, guesses[name]))
+
+
+def initial_models(name: str, eta_n: float, shear_rate: float, dt: float | None = None) -> list[FitModel]:
+    """The starts :func:`initial_model` offers for ``name``: one per ``YIELD_SHARES`` for a yield-stress law,
+    one otherwise."""
+    if name in LAWS and "tau_y" in LAWS[name].specs:
+        return [initial_model(name, eta_n, shear_rate, dt, share) for share in YIELD_SHARES]
+    return [initial_model(name, eta_n, shear_rate, dt)]
+
+
+def best_start(problem: StirProblem, models: list[FitModel], on_evaluation=None) -> FitModel:
+    """The model of ``models`` with the lowest loss on ``problem``: one forward simulation each, none for one."""
+    if len(models) == 1:
+        return models[0]
+    losses = [problem.loss(Readings(problem, m, on_evaluation)(m.theta())) for m in models]
+    return models[int(np.argmin(losses))]

@@ -6,9 +6,10 @@ Each Gauss-Newton iteration reuses the Jacobian through Broyden updates (see ``_
 iteration costs one forward simulation after the first.
 
 The paper's loss is L = mean_i |F_measured(t_i) - F_simulated(t_i)| [N] over the fitted samples. The default
-optimiser minimises the robust ``soft_l1`` cost sum_i 2 s² (sqrt(1 + (r_i/s)²) - 1), which equals the paper's L1
-loss for residuals much larger than the noise scale s and least squares for residuals within the noise, with
-trust-region reflective steps inside the bounds (scipy.optimize.least_squares).
+optimiser minimises the robust ``soft_l1`` cost sum_i 2 s² (sqrt(1 + (r_i/s)²) - 1), least squares for residuals
+within the scale s and the paper's L1 loss for those far beyond it, where s is the robust size of the residuals
+at the start (``residual_scale``), with dogleg steps in a rectangular trust region inside the bounds
+(scipy.optimize.least_squares, ``dogbox``) whose first size is ``TRUST_RADIUS`` per parameter.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ from .problem import StirProblem
 #: Smallest step in θ that updates the Broyden Jacobian: 100 float32 ulps of a relative change; a smaller step
 #: cannot change the simulation's float32 parameters, so its secant carries no information.
 MIN_SECANT_STEP = 100 * float(np.finfo(np.float32).eps)
+
+#: The first trust region, per parameter scale: a factor e in a log-scaled parameter, 0.25 in an index.
+TRUST_RADIUS = {"log": 1.0, "linear": 0.25}
 
 #: Finite-difference steps in θ: 5 % relative change of a log-scaled parameter, 0.02 of a dimensionless index.
 FD_STEP = {"log": 0.05, "linear": 0.02}
@@ -104,24 +108,47 @@ class _BroydenJacobian:
     """The Jacobian by forward differences at the first point, then by Broyden's rank-one updates from each step's
     change of readings, J += (Δf - J Δθ) Δθᵀ / (Δθᵀ Δθ): one forward simulation per iteration instead of k + 1.
     The final Jacobian, used for the uncertainty, is recomputed by finite differences unless the fit started from a
-    coarser simulation's Jacobian."""
+    coarser simulation's Jacobian.
 
-    def __init__(self, readings: Readings, initial: np.ndarray | None = None):
+    A coarser simulation's Jacobian ``initial`` comes with that simulation's readings ``initial_readings`` at the
+    same θ. Its forces differ from this one's mostly by a factor (a coarse grid under-resolves the viscous layers
+    around the rod: 40 % less drag than the fine grid at 10 Pa·s), and a Jacobian too small by that factor sends
+    the first step too far, so the first matrix is s J_coarse with s = f·g / g·g, the least-squares ratio of this
+    simulation's readings f to the coarse ones g (output space mapping; kept unscaled unless s > 0)."""
+
+    def __init__(self, readings: Readings, initial: np.ndarray | None = None,
+                 initial_readings: np.ndarray | None = None):
         self.readings = readings
         self.theta: np.ndarray | None = None
         self.value: np.ndarray | None = initial
+        self.initial_readings = initial_readings
+        self.scale = 1.0
 
     def __call__(self, theta: np.ndarray) -> np.ndarray:
         theta = np.asarray(theta, dtype=np.float64)
         f = self.readings(theta)
         if self.value is None:
             self.value = self.readings.jacobian(theta)
+        elif self.theta is None and self.initial_readings is not None:
+            g = self.initial_readings
+            ratio = float(f @ g) / float(g @ g) if float(g @ g) > 0.0 else math.nan
+            if math.isfinite(ratio) and ratio > 0.0:
+                self.scale = ratio
+                self.value = ratio * self.value
         elif self.theta is not None:
             step = theta - self.theta
             if np.abs(step).max() > MIN_SECANT_STEP:
                 self.value = self.value + np.outer(f - self.f - self.value @ step, step) / (step @ step)
         self.theta, self.f = theta.copy(), f
         return self.value
+
+
+def residual_scale(residuals: np.ndarray, noise: float) -> float:
+    """The soft-L1 cost's scale [N]: the robust size 1.4826 median |r| of the residuals at the start, at least the
+    reading's noise. Residuals within it are fitted by least squares, larger ones (spikes) by L1. At the noise
+    scale instead, every residual an imperfect model leaves counts as an outlier: the cost is L1 throughout, its
+    Gauss-Newton model has no curvature, and each step runs to the edge of the trust region."""
+    return max(1.4826 * float(np.median(np.abs(residuals))), noise)
 
 
 def noise_scale(measured: np.ndarray, resolution: float | None) -> float:
@@ -134,6 +161,7 @@ def noise_scale(measured: np.ndarray, resolution: float | None) -> float:
 
 def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6, optimizer: str = "lm",
               learning_rate: float = 0.05, initial_jacobian: np.ndarray | None = None,
+              initial_readings: np.ndarray | None = None,
               on_evaluation: Callable[[str, int, float], None] | None = None,
               on_iteration: Callable[[FitModel, int, float, np.ndarray], None] | None = None) -> FitResult:
     """Fit ``model`` (starting from its current θ) to ``problem``'s fitted samples.
@@ -146,6 +174,8 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         initial_jacobian: d readings / d θ (M, k) from a coarser simulation of the same samples (coarse-to-fine):
             the first Broyden matrix, and, updated by Broyden steps, the Jacobian reported at the end, so that
             no finite differences are spent at this resolution.
+        initial_readings: that coarser simulation's readings [N] at the starting θ, (M,): the coarse Jacobian is
+            scaled by the ratio of this simulation's readings to them (``_BroydenJacobian``).
         on_evaluation: called after each forward simulation with (model name, count, loss [N]).
         on_iteration: called after each iteration with (model, iteration, loss [N], θ), e.g. to checkpoint.
     """
@@ -169,24 +199,29 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         if on_iteration is not None:
             on_iteration(model, len(history), loss, theta)
 
-    theta0 = model.theta()
+    theta0 = np.clip(model.theta(), model.lower, model.upper)
     if optimizer == "lm":
-        scale = noise_scale(problem.measured, problem.recording.sensor.resolution)
+        scale = residual_scale(readings(theta0)[train] - measured,
+                               noise_scale(problem.measured, problem.recording.sensor.resolution))
 
-        def residuals(theta):
-            return readings(theta)[train] - measured
+        def residuals(step):
+            return readings(theta0 + step)[train] - measured
 
-        broyden = _BroydenJacobian(readings, initial_jacobian)
+        broyden = _BroydenJacobian(readings, initial_jacobian, initial_readings)
 
-        def jacobian(theta):
+        def jacobian(step):
+            theta = theta0 + step
             jac = broyden(theta)
             record(theta, problem.loss(readings(theta)))
             return jac[train]
 
-        solution = optimize.least_squares(residuals, np.clip(theta0, model.lower, model.upper), jac=jacobian,
-                                          bounds=(model.lower, model.upper), method="trf", loss="soft_l1",
-                                          f_scale=scale, max_nfev=max_iterations, x_scale=1.0)
-        best, message = solution.x, solution.message
+        # in steps from the start, so the first trust region is TRUST_RADIUS whatever θ's units (the dogbox
+        # method's box starts at the size of x0 in x_scale units, or 1 at x0 = 0)
+        radius = np.array([TRUST_RADIUS[s] for s in model.scales])
+        solution = optimize.least_squares(residuals, np.zeros_like(theta0), jac=jacobian,
+                                          bounds=(model.lower - theta0, model.upper - theta0), method="dogbox",
+                                          loss="soft_l1", f_scale=scale, max_nfev=max_iterations, x_scale=radius)
+        best, message = theta0 + solution.x, solution.message
     elif optimizer == "adam":
         best, message = _adam(problem, model, readings, theta0, max_iterations, learning_rate, record)
     else:

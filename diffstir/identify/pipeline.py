@@ -23,7 +23,8 @@ from ..density import estimate_recording_density
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .initial import (
-    LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, initial_model, mean_stirring_speed,
+    LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, best_start, effective_shear_rate, initial_models,
+    mean_stirring_speed,
 )
 from .models import FitModel
 from .optimise import FitResult, fit_model, noise_scale
@@ -161,9 +162,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                 fits[name] = _restore(name, done[name], stage_problem, dt=dt)
                 tracker.skip(name)
                 continue
-            jacobian = None
+            jacobian = start_readings = None
             if start is not None:
-                model, jacobian = start[name].model.copy(), start[name].jacobian
+                model, jacobian, start_readings = start[name].model.copy(), start[name].jacobian, start[name].predicted
                 if name == "corotated":  # keep its apparent viscosity mu * dt across the change of step
                     model = FitModel.named("corotated", dt=dt,
                                            shear_modulus=start[name].model.params_si()["shear_modulus"]
@@ -171,8 +172,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             elif name == "newtonian":
                 model = FitModel.named("newtonian", eta=state["ladder"]["estimate"])
             else:
-                model = initial_model(name, fits["newtonian"].model.params_si()["eta"],
-                                      state["effective_shear_rate"], dt=dt)
+                starts = initial_models(name, fits["newtonian"].model.params_si()["eta"],
+                                        state["effective_shear_rate"], dt=dt)
+                model = starts[0] if name in running else best_start(stage_problem, starts, tracker.evaluation)
             if name in running:
                 model.set_theta(np.array(running[name]))
             # the corotated baseline's viscosity is mu * dt, so its step is held fixed
@@ -185,7 +187,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                 save()
 
             fits[name] = fit_model(fit_problem, model, max_iterations=iterations, optimizer=optimizer,
-                                   initial_jacobian=jacobian, on_evaluation=tracker.evaluation,
+                                   initial_jacobian=jacobian, initial_readings=start_readings,
+                                   on_evaluation=tracker.evaluation,
                                    on_iteration=on_iteration)
             done[name] = _serialise(fits[name])
             running.pop(name, None)

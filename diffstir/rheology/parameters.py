@@ -23,6 +23,10 @@ Scale = Literal["log", "linear"]
 #: The stored sigmoid fraction is kept in [_EDGE, 1 - _EDGE] so that a value set exactly on a bound has a finite raw.
 _EDGE = 1e-12
 
+#: Relative distance [1] within which a value is taken as the bound it rounds to: float32 parameters carry about
+#: 6e-8, and a value read back from them goes through exp and a sigmoid.
+BOUND_ROUNDING = 1e-6
+
 
 @dataclass(frozen=True)
 class ParameterSpec:
@@ -109,8 +113,13 @@ class BoundedParameter(nn.Module):
         return from_raw(self.raw, self.lo, self.hi, self.scale)
 
     def check(self, value: float) -> float:
-        """Return ``value`` as a float; raise ValueError naming the parameter, value, bounds and unit if outside."""
+        """Return ``value`` as a float; raise ValueError naming the parameter, value, bounds and unit if outside.
+        A value within float32 round-off (relative 1e-6) of a bound, as one read back from a fit that ended on the
+        bound, is that bound."""
         value = float(value)
+        for bound in (self.lo, self.hi):
+            if math.isclose(value, bound, rel_tol=BOUND_ROUNDING, abs_tol=1e-12):
+                return bound
         if not (self.lo <= value <= self.hi):  # also rejects NaN
             raise ValueError(
                 f"{self.param_name} = {value:g} {self.unit} is outside its bounds "
