@@ -34,6 +34,12 @@ from .uncertainty import Uncertainty, laplace, log_viscosity_interval
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
+#: Fine-stage evaluations a one-parameter model (the Newtonian law, the corotated baseline) gets beyond
+#: ``fine_iterations``: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss
+#: (d ln F / d ln η ≈ 0.3 at Re 25, where one step from the coarse optimum ran to the trust region's edge: a
+#: 0.2 Pa·s lab fluid read +32 % after one fine step and −2 % after three, docs/accuracy.md).
+SECANT_STEPS = 2
+
 
 @dataclass
 class Identification:
@@ -186,7 +192,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                 tracker.iteration(f"{stage}/{name}", iteration, loss, m.params_si())
                 save()
 
-            fits[name] = fit_model(fit_problem, model, max_iterations=iterations, optimizer=optimizer,
+            budget = iterations + (SECANT_STEPS if start is not None and model.size == 1 else 0)
+            fits[name] = fit_model(fit_problem, model, max_iterations=budget, optimizer=optimizer,
                                    initial_jacobian=jacobian, initial_readings=start_readings,
                                    on_evaluation=tracker.evaluation,
                                    on_iteration=on_iteration)

@@ -1,0 +1,55 @@
+"""Where a simulation resolution's own loss minimum lies: the paper's loss and the mean |reading| of Newtonian
+fluids on a virtual-lab recording, over a list of viscosities (docs/accuracy.md, the Newtonian sweep).
+
+The recording is the one ``identification_benchmark.py --part newtonian`` makes for the same true viscosity and
+seed (the seed there is ``--seed`` + the viscosity's index in its list: 3 for 0.2 Pa·s, 6 for 10 Pa·s with the
+defaults). Each viscosity costs one forward simulation on ``--sim``.
+
+    python scripts/loss_scan.py --eta-true 10 --seed 6 --sim sim/slice2d.yaml --etas 10 10.5 11.3 12.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+from diffstir.identify import FitModel, StirProblem, Windows
+from diffstir.identify.optimise import Readings
+from diffstir.identify.pipeline import density_estimate
+from diffstir.lab import Fluid, stirring_programme, synthesise
+from identification_benchmark import NEWTONIAN_PROGRAMME, RADIUS, RAMP, sensor_preset, sim
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--eta-true", type=float, required=True, help="the lab fluid's viscosity [Pa s]")
+    parser.add_argument("--seed", type=int, required=True, help="the lab sensor's noise seed")
+    parser.add_argument("--sim", default="sim/slice2d.yaml", help="fitting resolution, a file under conf/")
+    parser.add_argument("--etas", type=float, nargs="+", required=True, help="viscosities to simulate [Pa s]")
+    parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    trajectory = stirring_programme(NEWTONIAN_PROGRAMME, radius=RADIUS, ramp_time=RAMP)
+    fluid = Fluid(name=f"newtonian {args.eta_true:g}", density=1000.0,
+                  law={"name": "newtonian", "params": {"eta": args.eta_true}})
+    recording = synthesise(fluid, trajectory, sim_config=sim("lab/sim/truth2d.yaml"),
+                           sensor=sensor_preset(args.sensor), seed=args.seed).recording
+    problem = StirProblem(recording, sim(args.sim), density_estimate(recording, None)["value"],
+                          Windows.of(recording, None, 0.25))
+    print(f"truth {args.eta_true:g} Pa s, seed {args.seed}, fitted on {args.sim}; "
+          f"measured mean |reading| {problem.mean_reading():.5f} N\n")
+    print("| η [Pa·s] | mean \\|reading\\| [N] | loss [N] | s |")
+    print("|---|---|---|---|")
+    for eta in args.etas:
+        t0 = time.perf_counter()
+        model = FitModel.named("newtonian", eta=eta)
+        reading = Readings(problem, model)(np.log([eta]))
+        print(f"| {eta:g} | {problem.mean_reading(reading):.5f} | {problem.loss(reading):.5f} | "
+              f"{time.perf_counter() - t0:.0f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
