@@ -112,6 +112,24 @@ def test_exponential_approach_recovers_its_parameters():
     assert half == pytest.approx(Z95 * a.birge * (math.log(a.plateau_ci95[1]) - math.log(a.plateau)) / (Z95 * a.birge))
     # at the homogeneity time the remaining excess equals the plateau's 95 % half-width
     assert abs(a.excess) * math.exp(-(a.homogeneity_time - a.start) / a.time_constant) == pytest.approx(half)
+    assert a.homogeneity_time_ci95[0] < a.homogeneity_time < a.homogeneity_time_ci95[1]
+
+
+def test_homogeneity_time_interval_covers_the_truth_about_95_percent_of_the_time():
+    # the true t_h of the noiseless course, defined with the fit's own plateau half-width: the delta-method interval
+    # is approximate, so its coverage over 200 noisy courses must be near 95 % (binomial sd 1.5 %), not exact
+    t = np.linspace(0.2, 4.0, 12)
+    sigma = np.full(t.size, 0.02)
+    course = 1.2 * np.exp(-(t - t[0]) / 0.8)
+    rng = np.random.default_rng(5)
+    hits, trials = 0, 200
+    for _ in range(trials):
+        a = fit_approach(t, 0.3 * np.exp(course + sigma * rng.normal(size=t.size)), sigma)
+        half = math.log(a.plateau_ci95[1] / a.plateau)
+        truth = t[0] + 0.8 * math.log(1.2 / half)
+        lo, hi = a.homogeneity_time_ci95
+        hits += lo <= truth <= hi
+    assert 0.95 - 4 * 0.015 <= hits / trials <= 1.0
 
 
 def test_mixing_experiment_writes_the_report(blend_lab, tmp_path, monkeypatch):

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import hydra
@@ -108,8 +109,10 @@ def mixing(cfg: DictConfig) -> None:
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_mixing_report(result, out)
     a = result.approach
+    lo, hi = a.homogeneity_time_ci95
+    interval = f" (95 % CI {lo:.3g}-{hi:.3g} s)" if math.isfinite(lo) else ""
     print(f"blend {a.plateau:.4g} Pa·s (95 % CI {a.plateau_ci95[0]:.4g}-{a.plateau_ci95[1]:.4g}), homogeneous after "
-          f"{a.homogeneity_time:.3g} s; wrote {paths['json']}")
+          f"{a.homogeneity_time:.3g} s{interval}; wrote {paths['json']}")
 
 
 if __name__ == "__main__":

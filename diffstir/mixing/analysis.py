@@ -48,6 +48,7 @@ class Mixing:
             "approach": a.summary(),
             "blend_viscosity": a.plateau, "blend_viscosity_ci95": list(a.plateau_ci95),
             "homogeneity_time": a.homogeneity_time,
+            "homogeneity_time_ci95": a.summary()["homogeneity_time_ci95"],
             "lederer_roegiers": {"viscosities": [eta1, eta2], "fraction": self.fraction,
                                  "range": [low, high], "range_alpha": [1.0, 0.0],
                                  "blend_in_range": bool(low <= a.plateau <= high),
@@ -91,6 +92,8 @@ def write_mixing_report(result: Mixing, out) -> dict:
     dense = np.linspace(t[0], t[-1], 200)
     ax.plot(dense, result.approach.curve(dense), "k-", lw=1, label="exponential approach")
     ax.axvline(result.approach.homogeneity_time, color="k", ls=":", lw=0.8, label="homogeneous")
+    if all(np.isfinite(result.approach.homogeneity_time_ci95)):
+        ax.axvspan(*result.approach.homogeneity_time_ci95, color="k", alpha=0.08, label="its 95 % interval")
     ax.set_yscale("log")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("apparent viscosity [Pa·s]")

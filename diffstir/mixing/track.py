@@ -11,7 +11,8 @@ windows' mid-times t_i,
 whose covariance is scaled by the Birge ratio as in ``behaviour.classify``, with τ between half the windows'
 spacing and the recording's span (what the windows can resolve). The fluid is homogeneous, as far as
 the viscosity tells, once the excess has fallen below the plateau's 95 % half-width,
-t_h = t_0 + τ ln(|Δ| / (1.96 σ(ln η_∞))) (t_0 when it starts there). A course the approach cannot describe (flat,
+t_h = t_0 + τ ln(|Δ| / (1.96 σ(ln η_∞))) (t_0 when it starts there), with a delta-method 95 % interval from the
+covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (never before t_0). A course the approach cannot describe (flat,
 Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its plateau, t_h = t_0 and τ unknown;
 the report's time course shows whether that is a plateau or a drift.
 """
@@ -48,7 +49,7 @@ def time_windows(recording: Recording, window: float) -> list[SpeedWindow]:
 class Approach:
     """The fitted approach ln η(t) = ln η_∞ + Δ exp(−(t − t_0)/τ): ``plateau`` η_∞ [Pa·s] with ``plateau_ci95``,
     ``excess`` Δ [1], ``time_constant`` τ [s] with ``time_constant_ci95``, ``start`` t_0 [s] and the
-    ``homogeneity_time`` t_h [s] (module docstring)."""
+    ``homogeneity_time`` t_h [s] with ``homogeneity_time_ci95`` (module docstring)."""
 
     plateau: float
     plateau_ci95: tuple[float, float]
@@ -57,6 +58,7 @@ class Approach:
     time_constant_ci95: tuple[float, float]
     start: float
     homogeneity_time: float
+    homogeneity_time_ci95: tuple[float, float]
     birge: float
 
     def curve(self, t: np.ndarray) -> np.ndarray:
@@ -70,7 +72,8 @@ class Approach:
         return {"plateau": self.plateau, "plateau_ci95": list(self.plateau_ci95), "excess_log": self.excess,
                 "time_constant": self.time_constant if finite else None,
                 "time_constant_ci95": list(self.time_constant_ci95) if finite else None,
-                "start": self.start, "homogeneity_time": self.homogeneity_time, "birge_ratio": self.birge,
+                "start": self.start, "homogeneity_time": self.homogeneity_time,
+                "homogeneity_time_ci95": list(self.homogeneity_time_ci95) if finite else None, "birge_ratio": self.birge,
                 "units": {"plateau": "Pa s", "time_constant": "s", "start": "s", "homogeneity_time": "s"}}
 
 
@@ -112,9 +115,13 @@ def fit_approach(times, viscosity, log_std) -> Approach:
     tau = math.exp(log_tau)
     half = Z95 * se[0]
     ratio = abs(b) / half if half > 0 else math.inf
+    after = tau * math.log(ratio) if ratio > 1 else 0.0  # t_h - t_0
+    gradient = np.array([0.0, tau / b, after]) if after > 0 else np.zeros(3)  # d t_h / d (a, Δ, ln τ)
+    spread = Z95 * math.sqrt(float(gradient @ (cov * birge2) @ gradient))
     return Approach(plateau=math.exp(a), plateau_ci95=(math.exp(a - half), math.exp(a + half)), excess=float(b),
                     time_constant=tau, time_constant_ci95=(tau * math.exp(-Z95 * se[2]), tau * math.exp(Z95 * se[2])),
-                    start=t0, homogeneity_time=t0 + (tau * math.log(ratio) if ratio > 1 else 0.0),
+                    start=t0, homogeneity_time=t0 + after,
+                    homogeneity_time_ci95=(t0 + max(after - spread, 0.0), t0 + after + spread),
                     birge=math.sqrt(birge2))
 
 
@@ -127,7 +134,7 @@ def _constant(t: np.ndarray, y: np.ndarray, s: np.ndarray) -> Approach:
     half = Z95 * birge / math.sqrt(w.sum())
     return Approach(plateau=math.exp(mean), plateau_ci95=(math.exp(mean - half), math.exp(mean + half)), excess=0.0,
                     time_constant=math.nan, time_constant_ci95=(math.nan, math.nan), start=float(t[0]),
-                    homogeneity_time=float(t[0]), birge=birge)
+                    homogeneity_time=float(t[0]), homogeneity_time_ci95=(math.nan, math.nan), birge=birge)
 
 
 def track_viscosity(recording: Recording, config: SimConfig, density: float, window: float, *,
