@@ -128,8 +128,9 @@ def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None)
 
 
 #: Shares of the stress at γ̇_eff that a yield-stress law's start gives its yield stress: that of a paste and that
-#: of a liquid near its Newtonian limit. On the bundled (Carreau) example the paste's start read seven times the
-#: Newtonian fit's loss, and the fit ran to a nearly plastic index; ``initial_models`` offers both.
+#: of a liquid near its Newtonian limit. Its loss has a basin near each: from the paste's start alone the bundled
+#: (Carreau) example's fit ran to a nearly plastic index, from the liquid's alone ketchup's lost its yield stress
+#: (docs/accuracy.md). ``initial_models`` offers both, and the identification fits both.
 YIELD_SHARES = (0.2, 0.02)
 
 
@@ -161,10 +162,3 @@ def initial_models(name: str, eta_n: float, shear_rate: float, dt: float | None 
         return [initial_model(name, eta_n, shear_rate, dt, share) for share in YIELD_SHARES]
     return [initial_model(name, eta_n, shear_rate, dt)]
 
-
-def best_start(problem: StirProblem, models: list[FitModel], on_evaluation=None) -> FitModel:
-    """The model of ``models`` with the lowest loss on ``problem``: one forward simulation each, none for one."""
-    if len(models) == 1:
-        return models[0]
-    losses = [problem.loss(Readings(problem, m, on_evaluation)(m.theta())) for m in models]
-    return models[int(np.argmin(losses))]

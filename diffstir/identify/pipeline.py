@@ -23,7 +23,7 @@ from ..density import estimate_recording_density
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .initial import (
-    LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, best_start, effective_shear_rate, initial_models,
+    LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, initial_models,
     mean_stirring_speed,
 )
 from .models import FitModel
@@ -175,14 +175,15 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                     model = FitModel.named("corotated", dt=dt,
                                            shear_modulus=start[name].model.params_si()["shear_modulus"]
                                            * start[name].model.dt / dt)
+                models = [model]
             elif name == "newtonian":
-                model = FitModel.named("newtonian", eta=state["ladder"]["estimate"])
-            else:
-                starts = initial_models(name, fits["newtonian"].model.params_si()["eta"],
+                models = [FitModel.named("newtonian", eta=state["ladder"]["estimate"])]
+            else:  # a yield-stress law has two starts, a liquid and a paste: both are fitted, the lower loss kept
+                models = initial_models(name, fits["newtonian"].model.params_si()["eta"],
                                         state["effective_shear_rate"], dt=dt)
-                model = starts[0] if name in running else best_start(stage_problem, starts, tracker.evaluation)
-            if name in running:
-                model.set_theta(np.array(running[name]))
+            if name in running:  # resume the interrupted fit from its last iterate (the other start is dropped)
+                models = models[:1]
+                models[0].set_theta(np.array(running[name]))
             # the corotated baseline's viscosity is mu * dt, so its step is held fixed
             fit_problem = stage_problem if name != "corotated" else stage_problem.with_config(
                 replace(stage_problem.config, dt=dt))
@@ -192,11 +193,11 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                 tracker.iteration(f"{stage}/{name}", iteration, loss, m.params_si())
                 save()
 
-            budget = iterations + (SECANT_STEPS if start is not None and model.size == 1 else 0)
-            fits[name] = fit_model(fit_problem, model, max_iterations=budget, optimizer=optimizer,
-                                   initial_jacobian=jacobian, initial_readings=start_readings,
-                                   on_evaluation=tracker.evaluation,
-                                   on_iteration=on_iteration)
+            budget = iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
+            tries = [fit_model(fit_problem, model, max_iterations=budget, optimizer=optimizer,
+                               initial_jacobian=jacobian, initial_readings=start_readings,
+                               on_evaluation=tracker.evaluation, on_iteration=on_iteration) for model in models]
+            fits[name] = min(tries, key=lambda fit: fit.loss)
             done[name] = _serialise(fits[name])
             running.pop(name, None)
             save()

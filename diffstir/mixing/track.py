@@ -12,7 +12,7 @@ whose covariance is scaled by the Birge ratio as in ``behaviour.classify``, with
 spacing and the recording's span (what the windows can resolve). The fluid is homogeneous, as far as
 the viscosity tells, once the excess has fallen below the plateau's 95 % half-width,
 t_h = t_0 + τ ln(|Δ| / (1.96 σ(ln η_∞))) (t_0 when it starts there), with a delta-method 95 % interval from the
-covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (never before t_0). A course the approach cannot describe (flat,
+covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (never before t_0; none when t_h = t_0). A course the approach cannot describe (flat,
 Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its plateau, t_h = t_0 and τ unknown;
 the report's time course shows whether that is a plateau or a drift.
 """
@@ -73,7 +73,9 @@ class Approach:
                 "time_constant": self.time_constant if finite else None,
                 "time_constant_ci95": list(self.time_constant_ci95) if finite else None,
                 "start": self.start, "homogeneity_time": self.homogeneity_time,
-                "homogeneity_time_ci95": list(self.homogeneity_time_ci95) if finite else None, "birge_ratio": self.birge,
+                "homogeneity_time_ci95": (list(self.homogeneity_time_ci95)
+                                          if all(map(math.isfinite, self.homogeneity_time_ci95)) else None),
+                "birge_ratio": self.birge,
                 "units": {"plateau": "Pa s", "time_constant": "s", "start": "s", "homogeneity_time": "s"}}
 
 
@@ -116,8 +118,9 @@ def fit_approach(times, viscosity, log_std) -> Approach:
     half = Z95 * se[0]
     ratio = abs(b) / half if half > 0 else math.inf
     after = tau * math.log(ratio) if ratio > 1 else 0.0  # t_h - t_0
-    gradient = np.array([0.0, tau / b, after]) if after > 0 else np.zeros(3)  # d t_h / d (a, Δ, ln τ)
-    spread = Z95 * math.sqrt(float(gradient @ (cov * birge2) @ gradient))
+    gradient = np.array([0.0, tau / b, after])  # d t_h / d (a, Δ, ln τ)
+    # an excess within the plateau's half-width from the start: homogeneous from t_0 on, no interval to give
+    spread = Z95 * math.sqrt(float(gradient @ (cov * birge2) @ gradient)) if after > 0 else math.nan
     return Approach(plateau=math.exp(a), plateau_ci95=(math.exp(a - half), math.exp(a + half)), excess=float(b),
                     time_constant=tau, time_constant_ci95=(tau * math.exp(-Z95 * se[2]), tau * math.exp(Z95 * se[2])),
                     start=t0, homogeneity_time=t0 + after,
