@@ -4,6 +4,7 @@ recording."""
 
 import json
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,7 +14,7 @@ import torch
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
 from diffstir.diagnose.base import base_from_identification, law_from_report
 from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, lag, scaled_law
-from diffstir.diagnose.compare import NONE, fit_sensor, rank
+from diffstir.diagnose.compare import DISTINCT, NONE, fit_sensor, rank, reachable_rss
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify.problem import rig_from_recording
 from diffstir.lab import first_order_lag, stirring_programme
@@ -121,6 +122,38 @@ def test_no_effect_is_named_in_clean_readings():
         alarms += rank(fits, ctx.measured, NOISE)[1] != "none"
     # ΔBIC > 10 is a likelihood ratio above e^5 against a one-parameter extension: false alarms are rare
     assert alarms <= 1
+
+
+def test_reachable_rss_is_the_bounded_linear_least_squares_optimum():
+    rng = np.random.default_rng(0)
+    jacobian = rng.normal(size=(200, 2))
+    noise = rng.normal(0.0, 0.1, 200)
+    residual = jacobian @ np.array([0.8, -0.3]) + noise
+    box = SimpleNamespace(lower=np.array([-1.0, -1.0]), upper=np.array([1.0, 1.0]))
+    free = residual - jacobian @ np.linalg.lstsq(jacobian, residual, rcond=None)[0]
+    assert reachable_rss(residual, jacobian, np.zeros(2), box) == pytest.approx(free @ free, rel=1e-9)
+    # θ already at 0.5 of a bound at 1: the first step stops at 0.5, and what is left is more than the free optimum
+    at_edge = reachable_rss(residual, jacobian, np.array([0.5, 0.0]), box)
+    assert free @ free < at_edge < residual @ residual
+
+
+def test_a_fit_cut_short_that_could_still_catch_up_makes_the_verdict_ambiguous():
+    """A candidate is not ruled out because its budget stopped its fit: when one more Gauss-Newton step on its last
+    Jacobian promises to come within DISTINCT of the best, the verdict is ambiguous; converged, it is ruled out."""
+    ctx = synthetic_context("sensor_lag", lag_time=0.1)
+    fits = {"sensor_lag": fit_sensor(SENSOR_CANDIDATES["sensor_lag"], ctx), "none": fit_sensor(NONE, ctx)}
+    none, lagged = fits["none"], fits["sensor_lag"]
+    # a two-parameter "physics" fit stuck at the base reading, whose Jacobian points at the lagged reading
+    direction = (lagged.predicted - none.predicted)[:, None]
+    box = SimpleNamespace(lower=np.array([-2.0]), upper=np.array([2.0]))
+    stuck = replace(none, name="thixotropy", kind="physics", size=lagged.size, converged=False,
+                    reachable_rss=reachable_rss(ctx.measured - none.predicted, direction, np.zeros(1), box))
+    assert stuck.reachable_rss == pytest.approx(lagged.rss, rel=0.05)
+    _, verdict, evidence = rank({**fits, "thixotropy": stuck}, ctx.measured, NOISE)
+    assert verdict == "ambiguous" and set(evidence["tied"]) == {"sensor_lag", "thixotropy"}
+    assert evidence["unconverged_contenders"]["thixotropy"] < DISTINCT
+    settled = replace(stuck, converged=True, reachable_rss=none.rss)
+    assert rank({**fits, "thixotropy": settled}, ctx.measured, NOISE)[1] == "sensor_lag"
 
 
 def test_needs_diagnosis_tells_structure_from_noise():

@@ -16,8 +16,8 @@ p = p0 + J_s ln s) and cost no simulation:
 
 Physics candidates change the simulated fluid or rig and are simulated (``diffstir.lab.physics``):
 
-* ``thixotropy``:        Moore structure λ, η = s η_law (1 + α λ), dλ/dt = (1 − λ)/t_r − k γ̇ λ, λ(0) = 1;
-                         t_r is fixed (a few seconds of stirring do not determine it)       α [1], k [1]
+* ``thixotropy``:        Moore structure λ, η = s η_law (1 + α λ), dλ/dt = (1 − λ)/t_r − k γ̇ λ, λ(0) = 1
+                                                                                         α [1], k [1], t_r [s]
 * ``viscoelasticity``:   Jeffreys polymer stress θ dτ_p/dt + τ_p = 2 β η dev D              θ [s], β [1]
 * ``temperature_drift``: η = s η_law exp(−κ t), κ = b r (only the product of the sensitivity b [1/K] and the
                          warming rate r [K/s] shows in a force)                              κ [1/s]
@@ -91,7 +91,7 @@ class Context:
         noise: the reading's noise level [N].
         shear_rate: U/a [1/s], the rod's mean speed over its radius.
         duration: the compared span [s].
-        rebuild_time: t_r [s] of the thixotropy candidate.
+        rebuild_time: the thixotropy candidate's starting rebuild time t_r [s].
         law: the base law.
     """
 
@@ -218,10 +218,12 @@ def _yield_law(law: RheologyLaw, ctx: Context) -> RheologyLaw:
 
 PHYSICS_CANDIDATES = {
     "thixotropy": PhysicsCandidate(
-        "thixotropy", (SCALE, Param("alpha", "1", "log", 1e-2, 1e2), Param("breakdown", "1", "log", 1e-3, 10.0)),
-        lambda law, ctx: {"viscosity_scale": 1.0 / 1.25, "alpha": 0.5, "breakdown": 0.1},
+        "thixotropy", (SCALE, Param("alpha", "1", "log", 1e-2, 1e2), Param("breakdown", "1", "log", 1e-3, 10.0),
+                       Param("rebuild_time", "s", "log", 0.05, 100.0)),
+        lambda law, ctx: {"viscosity_scale": 1.0 / 1.25, "alpha": 0.5, "breakdown": 0.1,
+                          "rebuild_time": ctx.rebuild_time},
         _scaled(lambda law, v, ctx: HiddenPhysics(
-            law, thixotropy=Thixotropy(v["alpha"], v["breakdown"], ctx.rebuild_time), horizon=ctx.duration)),
+            law, thixotropy=Thixotropy(v["alpha"], v["breakdown"], v["rebuild_time"]), horizon=ctx.duration)),
         "thixotropy (viscosity that falls under shear and recovers at rest)"),
     "viscoelasticity": PhysicsCandidate(
         "viscoelasticity", (SCALE, Param("relaxation_time", "s", "log", 1e-3, 5.0),

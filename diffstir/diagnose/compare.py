@@ -18,7 +18,10 @@ Raftery (1995) scale of ΔBIC ≈ 2 ln(Bayes factor):
   explains most of the mismatch: (RSS_none − RSS_best) / (RSS_none − N σ²) ≥ ``EXPLAINED`` = 1/2, the share of the
   residual's variance above the noise that the extension removes;
 * ``ambiguous`` when another candidate is within ``DISTINCT`` = 6 of the best ("strong" evidence needed to
-  tell two effects apart);
+  tell two effects apart), or could be: a physics fit stopped by its budget of simulations, not by convergence,
+  is judged by the lower of its BIC and the BIC of the RSS one more Gauss-Newton step promises on its last
+  Jacobian (``CandidateFit.reachable_rss``), so that a candidate is not ruled out only because its fit was cut
+  short (``diagnose`` first gives such contenders a second budget);
 * otherwise the best candidate.
 
 The score of a candidate is BIC − BIC(none) (negative: the data favour the extension); its probability is the BIC
@@ -35,7 +38,7 @@ import numpy as np
 from scipy import optimize
 
 from ..identify.optimise import Readings, fit_model
-from ..identify.selection import bic
+from ..identify.selection import bic, bic_of_rss
 from ..identify.uncertainty import effective_samples, laplace
 from .base import residual_test
 from .candidates import (
@@ -67,6 +70,10 @@ class CandidateFit:
         simulations, seconds: cost of the fit.
         note: why it was not fitted (None when it was).
         warning: why the fit is less trustworthy than its interval says (None when it is not).
+        theta, jacobian: the fitted θ (k,) and d predicted / d θ there [N] (M, k), to resume a fit from.
+        converged: the fit stopped on its tolerances, not on its budget of simulations.
+        reachable_rss: the RSS [N²] one more Gauss-Newton step promises, min ‖r − J δ‖² within the bounds
+            (r the residual, J the Jacobian); the RSS itself when the fit converged.
     """
 
     name: str
@@ -84,6 +91,10 @@ class CandidateFit:
     seconds: float = 0.0
     note: str | None = None
     warning: str | None = None
+    theta: np.ndarray | None = None
+    jacobian: np.ndarray | None = None
+    converged: bool = True
+    reachable_rss: float = math.nan
 
 
 def _law_after(law, values: dict) -> dict:
@@ -98,7 +109,17 @@ def _finish(fit: CandidateFit, model, theta: np.ndarray, jacobian: np.ndarray, c
                 for k, (lo, hi) in unc.ci95.items()}
     fit.loss, fit.rss = float(np.mean(np.abs(residual))), float(residual @ residual)
     fit.size = model.size
+    fit.theta, fit.jacobian = np.asarray(theta, dtype=np.float64), jacobian
+    fit.reachable_rss = fit.rss if fit.converged else reachable_rss(residual, jacobian, theta, model)
     return fit
+
+
+def reachable_rss(residual: np.ndarray, jacobian: np.ndarray, theta: np.ndarray, model) -> float:
+    """min ‖r − J δ‖² [N²] over steps δ that keep θ + δ within the model's bounds: what one more Gauss-Newton
+    step on the linearised readings promises (optimistic where the readings curve)."""
+    step = optimize.lsq_linear(jacobian, residual, bounds=(model.lower - theta, model.upper - theta + 1e-12))
+    rest = residual - jacobian @ step.x
+    return float(min(rest @ rest, residual @ residual))
 
 
 def fit_sensor(candidate: SensorCandidate, ctx: Context) -> CandidateFit:
@@ -137,8 +158,11 @@ def fit_sensor(candidate: SensorCandidate, ctx: Context) -> CandidateFit:
     return _finish(fit, par, theta, jacobian, ctx)
 
 
-def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int) -> CandidateFit:
-    """Fit a physics candidate (``PHYSICS_CANDIDATES`` or ``yield_stress``) through the simulator."""
+def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int,
+                resume: CandidateFit | None = None) -> CandidateFit:
+    """Fit a physics candidate (``PHYSICS_CANDIDATES`` or ``yield_stress``) through the simulator; with
+    ``resume`` (an earlier fit of the same candidate), go on from its θ and Jacobian with ``max_iterations`` more
+    evaluations."""
     started = time.perf_counter()
     if name == "yield_stress":
         model = yield_model(ctx.law, ctx)
@@ -151,7 +175,11 @@ def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int) -> Can
         model = PhysicsModel(candidate, ctx.law, ctx)
         fit = CandidateFit(name, "physics", candidate.summary)
     replay = CachedReplay(problem, model)
-    jacobian0 = Readings(replay, model).jacobian(model.theta())
+    if resume is None:
+        jacobian0 = Readings(replay, model).jacobian(model.theta())
+    else:
+        model.set_theta(resume.theta)
+        jacobian0 = resume.jacobian
     result = fit_model(replay, model, max_iterations=max_iterations, initial_jacobian=jacobian0)
     values = model.params_si()
     fit.params, fit.units, fit.predicted = values, dict(model.units), result.predicted
@@ -159,7 +187,9 @@ def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int) -> Can
         fit.law = {"name": model.name, "params": values, "units": dict(model.units)}
     else:
         fit.law = _law_after(ctx.law, values)
-    fit.simulations, fit.seconds = replay.simulations, time.perf_counter() - started
+    fit.simulations = replay.simulations + (0 if resume is None else resume.simulations)
+    fit.seconds = time.perf_counter() - started + (0.0 if resume is None else resume.seconds)
+    fit.converged = result.converged
     return _finish(fit, model, result.theta, result.jacobian, ctx)
 
 
@@ -187,6 +217,8 @@ def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> t
     best_rss = min(fitted, key=lambda k: fitted[k].rss)
     n_eff = effective_samples(measured - fitted[best_rss].predicted)
     bics = {k: bic(measured - f.predicted, f.size, n_eff) for k, f in fitted.items()}
+    reachable = {k: min(bics[k], bic_of_rss(f.reachable_rss, measured.size, f.size, n_eff))
+                 for k, f in fitted.items()}
     lowest = min(bics.values())
     weights = {k: math.exp(-(b - lowest) / 2) for k, b in bics.items()}
     total = sum(weights.values())
@@ -195,26 +227,30 @@ def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> t
     ranking = [{"effect": k, "score": bics[k] - bics["none"], "bic": bics[k], "probability": weights[k] / total,
                 "params": fitted[k].params, "units": fitted[k].units, "ci95": fitted[k].ci95, "law": fitted[k].law,
                 "loss_before": none_loss, "loss_after": fitted[k].loss, "parameters": fitted[k].size,
-                "simulations": fitted[k].simulations, "seconds": fitted[k].seconds, "warning": fitted[k].warning}
+                "simulations": fitted[k].simulations, "seconds": fitted[k].seconds, "warning": fitted[k].warning,
+                "converged": fitted[k].converged, "reachable_score": reachable[k] - bics["none"]}
                for k in order]
     ranking += [{"effect": k, "score": None, "note": f.note} for k, f in fits.items() if f.note is not None]
     best = order[0]
     runner = next((k for k in order[1:] if k != "none"), None)
     gain = bics["none"] - bics[best]
     separation = bics[runner] - bics[best] if runner is not None else math.inf
+    # within DISTINCT of the best, or could be: a fit cut short whose next step promises that much
+    tied = [k for k in order if k != "none" and reachable[k] - bics[best] < DISTINCT]
+    contenders = [k for k in tied if k != best and bics[k] - bics[best] >= DISTINCT]
     test = residual_test(measured - fitted["none"].predicted, noise)
     excess = fitted["none"].rss - measured.size * noise**2
     explained = (fitted["none"].rss - fitted[best].rss) / excess if excess > 0 else 0.0
     if not test["needed"] or best == "none" or gain <= EVIDENCE or explained < EXPLAINED:
         verdict = "none"
-    elif separation < DISTINCT:
+    elif len(tied) > 1:
         verdict = "ambiguous"
     else:
         verdict = best
     evidence = {"best": best, "runner_up": runner, "gain_over_none": gain, "separation": separation,
                 "explained": explained, "effective_samples": n_eff, "residual_test": test,
                 "thresholds": {"evidence": EVIDENCE, "distinct": DISTINCT, "explained": EXPLAINED},
-                "tied": [k for k in order if k != "none" and bics[k] - bics[best] < DISTINCT]
-                if verdict == "ambiguous" else []}
+                "tied": tied if verdict == "ambiguous" else [],
+                "unconverged_contenders": {k: reachable[k] - bics[best] for k in contenders}}
     return ranking, verdict, evidence
 

@@ -25,7 +25,7 @@ from ..mpm import SimConfig
 from ..recording import Recording
 from .base import BaseFit, base_from_identification, law_from_report, noise_level, simulate_base
 from .candidates import CANDIDATES, Context, accel_reading, check_names
-from .compare import CandidateFit, fit_candidates, rank
+from .compare import CandidateFit, fit_candidates, fit_physics, rank
 from .locate import locate
 
 #: Confidence words for the separation ΔBIC between the verdict and the runner-up (Kass and Raftery 1995).
@@ -70,9 +70,13 @@ class Diagnosis:
                     f"{ev['thresholds']['explained']:.0%}).")
         if self.verdict == "ambiguous":
             tied = " and ".join(ev["tied"])
+            cut = ev["unconverged_contenders"]
+            why = (f"ΔBIC {ev['separation']:.1f} < {ev['thresholds']['distinct']:g}" if not cut else
+                   f"the fit of {' and '.join(cut)} stopped on its budget of simulations, and its next step "
+                   f"promises to come within ΔBIC {max(cut.values()):.1f} of the best")
             return (f"Something was left out (ΔBIC {ev['gain_over_none']:.0f} against no extension), but {tied} "
-                    f"explain it about equally well (ΔBIC {ev['separation']:.1f} < {ev['thresholds']['distinct']:g}): "
-                    "this recording cannot tell them apart; a programme with stops and reversals may.")
+                    f"explain it about equally well ({why}): this recording cannot tell them apart; a programme "
+                    "with stops and reversals may, or a larger max_iterations.")
         fit = self.fits[self.verdict]
         strength = float(np.sqrt(np.mean((fit.predicted - none.predicted) ** 2)) /
                          np.sqrt(np.mean(self.problem.measured ** 2)))
@@ -126,8 +130,10 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
         config: the simulator's resolution for the physics candidates (the coarse 2-D slice is the cheap choice).
         window: compare the first ``window`` seconds [s] (None: the whole recording).
         candidates: names from ``CANDIDATES``; ``none`` is always added.
-        max_iterations: Gauss-Newton evaluations per physics candidate after its finite-difference Jacobian.
-        rebuild_time: t_r [s] of the thixotropy candidate.
+        max_iterations: Gauss-Newton evaluations per physics candidate after its finite-difference Jacobian;
+            candidates whose fit was cut short by it but might still come within reach of the best (``compare``)
+            get as many again, and so does the best when its own fit was cut short.
+        rebuild_time: the thixotropy candidate's starting rebuild time t_r [s] (fitted).
         progress: print one line per fitted candidate.
     """
     started = time.perf_counter()
@@ -160,5 +166,11 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
 
     fits = fit_candidates(names, ctx, problem, max_iterations=max_iterations, on_fit=report)
     ranking, verdict, evidence = rank(fits, problem.measured, noise)
+    contenders = list(evidence["unconverged_contenders"])
+    if verdict != "none" and contenders:  # a second budget for the fits that might still catch up, and the best
+        for name in contenders + ([evidence["best"]] if not fits[evidence["best"]].converged else []):
+            fits[name] = fit_physics(name, ctx, problem, max_iterations=max_iterations, resume=fits[name])
+            report(fits[name])
+        ranking, verdict, evidence = rank(fits, problem.measured, noise)
     return Diagnosis(recording=recording, problem=problem, base=base, location=location, fits=fits,
                      ranking=ranking, verdict=verdict, evidence=evidence, seconds=time.perf_counter() - started)

@@ -52,6 +52,7 @@ class FitResult:
         evaluations: forward simulations spent.
         seconds: wall time spent [s].
         message: what stopped the optimiser.
+        converged: the optimiser stopped on its tolerances, not on its budget of evaluations.
     """
 
     model: FitModel
@@ -64,6 +65,7 @@ class FitResult:
     evaluations: int = 0
     seconds: float = 0.0
     message: str = ""
+    converged: bool = False
 
 
 class Readings:
@@ -221,9 +223,10 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         solution = optimize.least_squares(residuals, np.zeros_like(theta0), jac=jacobian,
                                           bounds=(model.lower - theta0, model.upper - theta0), method="dogbox",
                                           loss="soft_l1", f_scale=scale, max_nfev=max_iterations, x_scale=radius)
-        best, message = theta0 + solution.x, solution.message
+        best, message, converged = theta0 + solution.x, solution.message, solution.status > 0
     elif optimizer == "adam":
         best, message = _adam(problem, model, readings, theta0, max_iterations, learning_rate, record)
+        converged = False
     else:
         raise ValueError(f"fit.optimizer = {optimizer!r}; expected 'lm' or 'adam'")
     # the optimiser's own θ, not one read back from the float32 parameters: the readings there are cached, and a
@@ -235,7 +238,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
     return FitResult(model=model, theta=theta, predicted=predicted, jacobian=jac, loss=problem.loss(predicted),
                      holdout_loss=problem.loss(predicted, train=False),
                      history=history, evaluations=readings.evaluations, seconds=time.perf_counter() - start,
-                     message=str(message))
+                     message=str(message), converged=bool(converged))
 
 
 def _adam(problem: StirProblem, model: FitModel, readings: Readings, theta0: np.ndarray, iterations: int,

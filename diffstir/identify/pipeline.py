@@ -296,7 +296,7 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
 def _serialise(fit: FitResult) -> dict:
     return {"theta": fit.theta.tolist(), "predicted": fit.predicted.tolist(), "jacobian": fit.jacobian.tolist(),
             "history": fit.history, "evaluations": fit.evaluations, "seconds": fit.seconds, "message": fit.message,
-            "params": fit.model.params_si()}
+            "converged": fit.converged, "params": fit.model.params_si()}
 
 
 def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
@@ -306,7 +306,8 @@ def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> 
     return FitResult(model=model, theta=np.array(saved["theta"]), predicted=predicted,
                      jacobian=np.array(saved["jacobian"]), loss=problem.loss(predicted),
                      holdout_loss=problem.loss(predicted, train=False), history=saved["history"],
-                     evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"])
+                     evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"],
+                     converged=saved.get("converged", False))
 
 
 def _load_checkpoint(path: str | Path | None, settings: dict) -> dict:

@@ -18,8 +18,12 @@ CRITERIA = ("bic", "holdout", "loss")
 
 def bic(residuals: np.ndarray, n_params: int, n_effective: float) -> float:
     """N_eff ln(RSS / N) + k ln N_eff for fitted-sample ``residuals`` [N]."""
-    rss = float(residuals @ residuals)
-    return n_effective * math.log(max(rss / len(residuals), 1e-300)) + n_params * math.log(n_effective)
+    return bic_of_rss(float(residuals @ residuals), len(residuals), n_params, n_effective)
+
+
+def bic_of_rss(rss: float, n_samples: int, n_params: int, n_effective: float) -> float:
+    """N_eff ln(RSS / N) + k ln N_eff for a residual sum of squares ``rss`` [N²] over ``n_samples`` samples."""
+    return n_effective * math.log(max(rss / n_samples, 1e-300)) + n_params * math.log(n_effective)
 
 
 def rank(scores: dict[str, float]) -> list[str]:
