@@ -1,0 +1,105 @@
+"""Why the rod at rest in 3-D does not feel its buoyancy (docs/validation.md, Known defects).
+
+The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` seconds around the still rod. Printed:
+
+* the mean vertical force on the rod against the buoyancy ρ g V of its immersed volume;
+* the particles' pressure p = −κ/2 (J − 1/J) (κ = ρ c²) in layers one cell thick, far from the rod (the outer
+  half of the gap between rod and wall, a cell clear of the wall) and under the rod's tip, against the
+  hydrostatic ρ g (h_s − z), h_s the free surface's height far from the rod;
+* the fluid's compression two ways: the particles' mean 1 − J, and the drop of the free surface below the fill
+  height (a column compressed uniformly by ε sinks by ε h);
+* the rod's reaction on the final state split by node layer above the tip (``diffstir.mpm.step``): the particles'
+  momentum with the pressure impulse (p2g), the gravity of the fluid mass on the rod's nodes, and the momentum the
+  ghost-velocity boundary condition gives that mass.
+
+    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import platform
+from collections import defaultdict
+from datetime import datetime, timezone
+
+import numpy as np
+import torch
+
+from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.mpm.step import grid_update, p2g
+from diffstir.rheology import Newtonian
+from diffstir.rig import Rig
+from diffstir.trajectory import stationary
+
+DENSITY, SOUND_SPEED = 1000.0, 4.5  # kg/m³, m/s (the paper's grid's defaults, tests/test_mpm.py)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--dx", type=float, default=0.01, help="cell size [m]")
+    parser.add_argument("--hold", type=float, default=0.02, help="time held at rest after settling [s]")
+    parser.add_argument("--settle", type=float, default=0.2, help="settling time [s]")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    print(f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, torch {torch.__version__}, "
+          f"dx = {args.dx} m, settle {args.settle} s, hold {args.hold} s")
+    rig = Rig()
+    rod, g = rig.rod, rig.gravity
+    cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle)
+    sim = StirringSimulator(Newtonian(eta=0.2), rig, cfg, density=DENSITY)
+    trajectory = stationary(args.hold)
+    with torch.no_grad():
+        result = sim(trajectory)
+    buoyancy = DENSITY * g * math.pi * rod.radius ** 2 * rod.immersion_depth
+    print(f"vertical force on the rod {result.force[:, 2].mean().item():+.4f} N, buoyancy ρ g V {buoyancy:.4f} N")
+
+    x, J = result.state.x, result.state.J
+    r = x[:, :2].norm(dim=1)
+    far = (r > 0.5 * (rod.radius + rig.cup.radius)) & (r < rig.cup.radius - args.dx)  # the outer half of the gap
+    surface = float(x[far, 2].max())
+    tip = rig.cup.fill_height - rod.immersion_depth
+    kappa = DENSITY * SOUND_SPEED ** 2
+
+    def pressure(mask) -> str:
+        j = J[mask]
+        return f"{float((-0.5 * kappa * (j - 1.0 / j)).mean()):7.0f} ({int(mask.sum())})" if mask.any() else "-"
+
+    print("\n| height z [m] | hydrostatic ρ g (h_s − z) [Pa] | particle p far from the rod [Pa] (n) | "
+          "under the tip [Pa] (n) |\n|---|---|---|---|")
+    for z in [surface - k * args.dx for k in range(1, int(surface / args.dx))]:
+        layer = (x[:, 2] > z - 0.5 * args.dx) & (x[:, 2] < z + 0.5 * args.dx)
+        under = layer & (r < rod.radius) & (x[:, 2] < tip)
+        print(f"| {z:.3f} | {DENSITY * g * (surface - z):.0f} | {pressure(layer & far)} | {pressure(under)} |")
+    print(f"\ncompression: particles' mean 1 − J {float((1 - J).mean()):.4f}; free surface "
+          f"{surface:.4f} m against the fill height {rig.cup.fill_height:.4f} m: "
+          f"{(rig.cup.fill_height - surface) / rig.cup.fill_height:.4f} of the column")
+
+    dt = result.dt
+    state = result.state
+    pose = sim._poses(trajectory, np.array([trajectory.t[-1] - dt, trajectory.t[-1]]))[0]
+    buffer, _ = p2g(sim.scene, state, dt)
+    v_new, force, _ = grid_update(sim.scene, sim.material, buffer, pose, dt)
+    scene, d = sim.scene, sim.scene.dim
+    window = scene.rod_window.nodes(scene.grid, pose.axis)
+    nodes = scene.nodes[window]
+    local = nodes - torch.cat([pose.axis, pose.tip.reshape(1)])
+    inside = (local[:, :2].norm(dim=1) <= rod.radius) & (local[:, 2] >= 0)
+    mass = buffer[window, d]
+    parts = defaultdict(lambda: torch.zeros(3, dtype=torch.float64))
+    for i in torch.nonzero(inside & (mass > 0)).flatten().tolist():
+        layer = int(round(float(local[i, 2]) / args.dx))
+        parts[layer] += torch.tensor([float(buffer[window[i], 2]) / dt, float(mass[i]) * float(scene.gravity[2]),
+                                      -float(mass[i] * v_new[window[i], 2].detach()) / dt], dtype=torch.float64)
+    print(f"\nthe rod's vertical reaction on the final state {force[2].item():+.4f} N, by node layer above the tip:\n"
+          "| layer [cells] | momentum + pressure impulse / Δt [N] | gravity of the node mass [N] | "
+          "− ghost momentum / Δt [N] |\n|---|---|---|---|")
+    total = torch.zeros(3, dtype=torch.float64)
+    for layer in sorted(parts):
+        total += parts[layer]
+        print(f"| {layer} | {parts[layer][0]:+.4f} | {parts[layer][1]:+.4f} | {parts[layer][2]:+.4f} |")
+    print(f"| all | {total[0]:+.4f} | {total[1]:+.4f} | {total[2]:+.4f} |")
+
+
+if __name__ == "__main__":
+    main()
