@@ -8,6 +8,8 @@ The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` sec
   hydrostatic ρ g (h_s − z), h_s the free surface's height far from the rod;
 * the fluid's compression two ways: the particles' mean 1 − J, and the drop of the free surface below the fill
   height (a column compressed uniformly by ε sinks by ε h);
+* the fluid's volume by its particles' J, Σ J V0, and its centre of mass's height, in the settled state and after
+  the hold: at rest neither should change;
 * the rod's reaction on the final state split by node layer above the tip (``diffstir.mpm.step``): the particles'
   momentum with the pressure impulse (p2g), the gravity of the fluid mass on the rod's nodes, and the momentum the
   ghost-velocity boundary condition gives that mass.
@@ -49,6 +51,7 @@ def main() -> None:
     cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle)
     sim = StirringSimulator(Newtonian(eta=0.2), rig, cfg, density=DENSITY)
     trajectory = stationary(args.hold)
+    settled = sim.initial_state(trajectory)
     with torch.no_grad():
         result = sim(trajectory)
     buoyancy = DENSITY * g * math.pi * rod.radius ** 2 * rod.immersion_depth
@@ -74,6 +77,11 @@ def main() -> None:
     print(f"\ncompression: particles' mean 1 − J {float((1 - J).mean()):.4f}; free surface "
           f"{surface:.4f} m against the fill height {rig.cup.fill_height:.4f} m: "
           f"{(rig.cup.fill_height - surface) / rig.cup.fill_height:.4f} of the column")
+
+    v0 = sim.scene.particle_volume
+    for name, fluid in (("settled", settled), (f"after {args.hold:g} s at rest", result.state)):
+        print(f"{name}: Σ J V0 {float(fluid.J.sum()) * v0 * 1e6:.1f} ml, centre of mass at "
+              f"z = {float(fluid.x[:, 2].mean()) * 1e3:.2f} mm")
 
     dt = result.dt
     state = result.state
