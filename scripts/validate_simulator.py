@@ -9,8 +9,9 @@ Checks:
   2 pi K a^2 [2 Omega / (n (1 - (a/b)^(2/n)))]^n.
 - translate: rod translating at 1 mm/s at the centre, 2-D, mu = 1 Pa s; steady force per unit length against
   4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)], at two sound speeds.
-- rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): volume change and vertical force
-  against rho g V_immersed.
+- rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): the fluid's volume by its particles'
+  J (sum J V0), the height of its centre of mass (at rest neither may change), and the vertical force against
+  rho g V_immersed.
 
 Runs with one intra-op thread: the simulator's tensors are small, and on a shared 2-core machine two threads made
 every step many times slower (docs/benchmarks.md).
@@ -78,9 +79,12 @@ def rest3d(duration: float) -> list[tuple[str, float, float]]:
     with torch.no_grad():
         result = sim(trajectory, initial=start)
     volume = lambda s: (s.J.sum() * sim.scene.particle_volume).item()  # noqa: E731
+    height = lambda s: s.x[:, 2].mean().item()  # noqa: E731
     buoyancy = 1000.0 * 9.81 * math.pi * A**2 * RIG.rod.immersion_depth
-    return [(f"3-D rest (1 cm cells), fluid volume after {duration:g} s / at start",
+    return [(f"3-D rest (1 cm cells), fluid volume by J, sum J V0, after {duration:g} s / at start",
              volume(result.state) / volume(start), 1.0),
+            (f"3-D rest (1 cm cells), centre of mass height after {duration:g} s / at start",
+             height(result.state) / height(start), 1.0),
             ("3-D rest (1 cm cells), vertical force on the rod [N] vs rho g V", steady(result.force[:, 2]), buoyancy)]
 
 
