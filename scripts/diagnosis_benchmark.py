@@ -7,7 +7,7 @@ recording) and the recording diagnosed (``diagnose``). Printed and written to ``
 the named effect against the concealed one, the false-alarm rate on clean recordings, the share named right at
 moderate strength, and the median reduction of the loss where an effect was present.
 
-    python scripts/diagnosis_benchmark.py                                       # the default run (~25 min, 1 core)
+    python scripts/diagnosis_benchmark.py                                       # the default run (~31 min, 1 core)
     python scripts/diagnosis_benchmark.py --strengths weak,moderate,strong --clean-seeds 0,1,2,3,4,5   # larger
 
 Strengths ("moderate"; "weak" is half, "strong" twice): sensor lag τ = 0.1 s; dead band 25 % of the clean

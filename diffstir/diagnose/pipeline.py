@@ -71,9 +71,12 @@ class Diagnosis:
         if self.verdict == "ambiguous":
             tied = " and ".join(ev["tied"])
             cut = ev["unconverged_contenders"]
+            gap = max(cut.values()) if cut else 0.0
+            promise = (f"to come within ΔBIC {gap:.1f} of the best" if gap >= 0 else
+                       f"to beat the best by ΔBIC {-gap:.1f}")
             why = (f"ΔBIC {ev['separation']:.1f} < {ev['thresholds']['distinct']:g}" if not cut else
                    f"the fit of {' and '.join(cut)} stopped on its budget of simulations, and its next step "
-                   f"promises to come within ΔBIC {max(cut.values()):.1f} of the best")
+                   f"promises {promise}")
             return (f"Something was left out (ΔBIC {ev['gain_over_none']:.0f} against no extension), but {tied} "
                     f"explain it about equally well ({why}): this recording cannot tell them apart; a programme "
                     "with stops and reversals may, or a larger max_iterations.")
