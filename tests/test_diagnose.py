@@ -12,10 +12,11 @@ import pytest
 import torch
 
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
-from diffstir.diagnose.base import base_from_identification, law_from_report
+from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
 from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, lag, scaled_law
-from diffstir.diagnose.compare import DISTINCT, NONE, fit_sensor, rank, reachable_rss
+from diffstir.diagnose.compare import DISTINCT, NONE, fit_physics, fit_sensor, rank, reachable_rss
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
+from diffstir.identify import StirProblem, Windows
 from diffstir.identify.problem import rig_from_recording
 from diffstir.lab import first_order_lag, stirring_programme
 from diffstir.mpm import SimConfig, StirringSimulator
@@ -239,6 +240,23 @@ def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
     assert top["loss_after"] < 0.5 * top["loss_before"]
     assert "sensor response" in report["sentence"]
     assert all(paths[k].stat().st_size > 0 for k in ("md", "residual", "before_after", "candidates"))
+
+
+def test_a_resumed_physics_fit_goes_on_from_where_it_stopped():
+    """The second budget of a fit cut short keeps its θ and Jacobian: no new finite differences, only the start's
+    simulation again and the further evaluations."""
+    recording = lagged_recording(tau=0.08)
+    problem = StirProblem(recording, FAST, 1000.0, Windows.of(recording, None, 0.0))
+    base = simulate_base(problem, Newtonian(eta=0.96), 1000.0, "test")
+    ctx = Context(times=problem.times, measured=problem.measured, base_reading=base.predicted,
+                  scale_column=base.scale_column, accel_reading=None, noise=NOISE, shear_rate=4.8,
+                  duration=problem.trajectory.duration, rebuild_time=1.0, law=base.law)
+    first = fit_physics("wall_slip", ctx, problem, max_iterations=1)
+    assert not first.converged and first.reachable_rss <= first.rss
+    assert first.simulations == 3  # the forward-difference Jacobian of (s, b): the start and one step each
+    more = fit_physics("wall_slip", ctx, problem, max_iterations=2, resume=first)
+    assert first.simulations < more.simulations <= first.simulations + 2
+    assert more.params != first.params and more.seconds > first.seconds
 
 
 def test_diagnose_app_writes_the_diagnosis(tmp_path, monkeypatch):
