@@ -2,7 +2,9 @@
 
 from .config import SimConfig
 from .materials import Corotated, KelvinVoigt
+from .sensitivity import Sensitivities, force_sensitivities
 from .simulator import SimResult, StirringSimulator, simulate
 from .state import State
 
-__all__ = ["Corotated", "KelvinVoigt", "SimConfig", "SimResult", "State", "StirringSimulator", "simulate"]
+__all__ = ["Corotated", "KelvinVoigt", "Sensitivities", "SimConfig", "SimResult", "State", "StirringSimulator",
+           "force_sensitivities", "simulate"]
