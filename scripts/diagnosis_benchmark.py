@@ -9,6 +9,7 @@ moderate strength, and the median reduction of the loss where an effect was pres
 
     python scripts/diagnosis_benchmark.py                                       # the default run (~31 min, 1 core)
     python scripts/diagnosis_benchmark.py --strengths weak,moderate,strong --clean-seeds 0,1,2,3,4,5   # larger
+    python scripts/diagnosis_benchmark.py --effects "" --clean-seeds 2,3,4,5,6,7,8,9   # clean recordings only
 
 Strengths ("moderate"; "weak" is half, "strong" twice): sensor lag τ = 0.1 s; dead band 25 % of the clean
 reading's rms; offset drift reaching 30 % of that rms over the recording; a moving mass whose force m a has 30 %
@@ -230,7 +231,7 @@ def main() -> None:
         for fluid_name in args.fluids.split(","):
             fluid = all_fluids[fluid_name]
             cases = [("none", "moderate", int(s)) for s in args.clean_seeds.split(",") if s]
-            cases += [(e, st, args.seed) for e in args.effects.split(",") for st in strengths]
+            cases += [(e, st, args.seed) for e in args.effects.split(",") if e for st in strengths]
             cases = [c for c in cases if f"{c[0]}-{c[1]}-{fluid.name.replace(' ', '_')}-{c[2]}" not in done]
             lab = Lab(fluid, config) if cases else None
             for effect, strength, seed in cases:
