@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import hydra
@@ -109,8 +108,8 @@ def mixing(cfg: DictConfig) -> None:
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_mixing_report(result, out)
     a = result.approach
-    lo, hi = a.homogeneity_time_ci95
-    interval = f" (95 % CI {lo:.3g}-{hi:.3g} s)" if math.isfinite(lo) else ""
+    ci = a.homogeneity_interval
+    interval = f" (95 % CI {ci[0]:.3g}-{ci[1]:.3g} s)" if ci else ""
     print(f"blend {a.plateau:.4g} Pa·s (95 % CI {a.plateau_ci95[0]:.4g}-{a.plateau_ci95[1]:.4g}), homogeneous after "
           f"{a.homogeneity_time:.3g} s{interval}; wrote {paths['json']}")
 

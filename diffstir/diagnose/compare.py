@@ -3,8 +3,8 @@
 Sensor candidates (and ``none``) are fitted without simulation on the linearised base reading; physics candidates
 start from the base law with the extension at a typical strength, take a forward-difference Jacobian (k + 1
 simulations) and a few trust-region Gauss-Newton steps with Broyden updates (``diffstir.identify.fit_model``, soft-L1
-cost at the starting residuals' scale, as the identification). Each fit gets the Laplace covariance of its parameters with the
-effective sample size (``diffstir.identify.uncertainty``).
+cost at the starting residuals' scale, as the identification). Each fit gets the Laplace covariance of its
+parameters with the effective sample size (``diffstir.identify.uncertainty``).
 
 Comparison by BIC with one effective sample size N_eff for all candidates (that of the candidate with the smallest
 RSS, whose residual is closest to the noise): BIC = N_eff ln(RSS/N) + k ln N_eff, k counting the viscosity scale

@@ -42,13 +42,14 @@ class Mixing:
         eta1, eta2 = self.viscosities
         low, high = blend_range(eta1, eta2, self.fraction)
         a = self.approach
+        approach = a.summary()
         alpha = [implied_alpha(v, eta1, eta2, self.fraction) for v in (a.plateau, *a.plateau_ci95)]
         return {"mixing": {
             "time_course": [{"time": float(t), **p.summary()} for t, p in zip(self.times, self.points)],
-            "approach": a.summary(),
+            "approach": approach,
             "blend_viscosity": a.plateau, "blend_viscosity_ci95": list(a.plateau_ci95),
             "homogeneity_time": a.homogeneity_time,
-            "homogeneity_time_ci95": a.summary()["homogeneity_time_ci95"],
+            "homogeneity_time_ci95": approach["homogeneity_time_ci95"],
             "lederer_roegiers": {"viscosities": [eta1, eta2], "fraction": self.fraction,
                                  "range": [low, high], "range_alpha": [1.0, 0.0],
                                  "blend_in_range": bool(low <= a.plateau <= high),
@@ -92,8 +93,8 @@ def write_mixing_report(result: Mixing, out) -> dict:
     dense = np.linspace(t[0], t[-1], 200)
     ax.plot(dense, result.approach.curve(dense), "k-", lw=1, label="exponential approach")
     ax.axvline(result.approach.homogeneity_time, color="k", ls=":", lw=0.8, label="homogeneous")
-    if all(np.isfinite(result.approach.homogeneity_time_ci95)):
-        ax.axvspan(*result.approach.homogeneity_time_ci95, color="k", alpha=0.08, label="its 95 % interval")
+    if result.approach.homogeneity_interval:
+        ax.axvspan(*result.approach.homogeneity_interval, color="k", alpha=0.08, label="its 95 % interval")
     ax.set_yscale("log")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("apparent viscosity [Pa·s]")

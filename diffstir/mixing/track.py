@@ -12,9 +12,9 @@ whose covariance is scaled by the Birge ratio as in ``behaviour.classify``, with
 spacing and the recording's span (what the windows can resolve). The fluid is homogeneous, as far as
 the viscosity tells, once the excess has fallen below the plateau's 95 % half-width,
 t_h = t_0 + τ ln(|Δ| / (1.96 σ(ln η_∞))) (t_0 when it starts there), with a delta-method 95 % interval from the
-covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (never before t_0; none when t_h = t_0). A course the approach cannot describe (flat,
-Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its plateau, t_h = t_0 and τ unknown;
-the report's time course shows whether that is a plateau or a drift.
+covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (never before t_0; none when t_h = t_0). A course
+the approach cannot describe (flat, Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its
+plateau, t_h = t_0 and τ unknown; the report's time course shows whether that is a plateau or a drift.
 """
 
 from __future__ import annotations
@@ -67,14 +67,19 @@ class Approach:
             return np.full(np.shape(t), self.plateau)
         return self.plateau * np.exp(self.excess * np.exp(-(np.asarray(t) - self.start) / self.time_constant))
 
+    @property
+    def homogeneity_interval(self) -> tuple[float, float] | None:
+        """The 95 % interval of the homogeneity time [s], None where there is none (t_h = t_0)."""
+        return self.homogeneity_time_ci95 if all(map(math.isfinite, self.homogeneity_time_ci95)) else None
+
     def summary(self) -> dict:
         finite = math.isfinite(self.time_constant)
+        interval = self.homogeneity_interval
         return {"plateau": self.plateau, "plateau_ci95": list(self.plateau_ci95), "excess_log": self.excess,
                 "time_constant": self.time_constant if finite else None,
                 "time_constant_ci95": list(self.time_constant_ci95) if finite else None,
                 "start": self.start, "homogeneity_time": self.homogeneity_time,
-                "homogeneity_time_ci95": (list(self.homogeneity_time_ci95)
-                                          if all(map(math.isfinite, self.homogeneity_time_ci95)) else None),
+                "homogeneity_time_ci95": list(interval) if interval else None,
                 "birge_ratio": self.birge,
                 "units": {"plateau": "Pa s", "time_constant": "s", "start": "s", "homogeneity_time": "s"}}
 
