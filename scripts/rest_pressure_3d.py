@@ -9,7 +9,7 @@ The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` sec
 * the fluid's compression two ways: the particles' mean 1 − J, and the drop of the free surface below the fill
   height (a column compressed uniformly by ε sinks by ε h);
 * the fluid's volume by its particles' J, Σ J V0, and its centre of mass's height, in the settled state and after
-  the hold: at rest neither should change;
+  the hold: at rest neither should change; and the seeded volume against the cup's fill volume;
 * the rod's reaction on the final state split by node layer above the tip (``diffstir.mpm.step``): the particles'
   momentum with the pressure impulse (p2g), the gravity of the fluid mass on the rod's nodes, and the momentum the
   ghost-velocity boundary condition gives that mass.
@@ -79,6 +79,10 @@ def main() -> None:
           f"{(rig.cup.fill_height - surface) / rig.cup.fill_height:.4f} of the column")
 
     v0 = sim.scene.particle_volume
+    cup_volume = math.pi * rig.cup.radius ** 2 * rig.cup.fill_height
+    rod_volume = math.pi * rod.radius ** 2 * rod.immersion_depth
+    print(f"seeded: {settled.x.shape[0]} particles, N V0 {settled.x.shape[0] * v0 * 1e6:.1f} ml; the cup to its fill "
+          f"height holds {cup_volume * 1e6:.1f} ml, less the rod's immersed {rod_volume * 1e6:.1f} ml")
     for name, fluid in (("settled", settled), (f"after {args.hold:g} s at rest", result.state)):
         print(f"{name}: Σ J V0 {float(fluid.J.sum()) * v0 * 1e6:.1f} ml, centre of mass at "
               f"z = {float(fluid.x[:, 2].mean()) * 1e3:.2f} mm")
