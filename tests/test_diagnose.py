@@ -194,7 +194,7 @@ def test_base_reuses_the_identification_readings_on_the_same_samples():
     jacobian = np.linspace(0.0, 1.0, 50)[:, None]
     problem = SimpleNamespace(config=FAST, times=times)
     fit = SimpleNamespace(model=SimpleNamespace(name="newtonian", material=law), predicted=np.ones(50),
-                          jacobian=jacobian)
+                          jacobian=jacobian, sensor={})
     ident = SimpleNamespace(selected=fit, density={"value": 1000.0}, problem=problem)
     base = base_from_identification(ident, problem)
     assert base.simulations == 0 and base.density == 1000.0

@@ -104,8 +104,8 @@ class _PhaseShiftedProblem:
     sensor lag at a 1 s stirring period): a model error that leaves residuals far above the noise at the optimum."""
 
     def __init__(self, eta_true: float):
-        self.t = np.linspace(0.0, 2.0, 200)
-        self.measured = eta_true * np.sin(2 * np.pi * self.t)
+        self.times = np.linspace(0.0, 2.0, 200)
+        self.measured = eta_true * np.sin(2 * np.pi * self.times)
         self.train = np.ones(200, dtype=bool)
         self.config = SimConfig(dim=2, viscosity_cap=1e3)
         self.recording = type("Recording", (), {"sensor": SensorSpec(mode="tangential", resolution=1e-4 * eta_true,
@@ -113,7 +113,7 @@ class _PhaseShiftedProblem:
 
     def simulate(self, law):
         eta = float(law(torch.ones(1, dtype=torch.float64)))
-        return torch.as_tensor(eta * np.sin(2 * np.pi * self.t - 0.13))
+        return torch.as_tensor(eta * np.sin(2 * np.pi * self.times - 0.13))
 
     def loss(self, predicted, train=True):
         return float(np.mean(np.abs(self.measured - predicted)))
@@ -127,9 +127,36 @@ def test_gauss_newton_converges_from_a_factor_two_whatever_the_units(eta_true):
     problem = _PhaseShiftedProblem(eta_true)
     fit = fit_model(problem, FitModel.named("newtonian", eta=2.0 * eta_true), max_iterations=4)
     etas = eta_true * np.linspace(0.9, 1.1, 401)
-    best = etas[np.argmin([problem.loss(e * np.sin(2 * np.pi * problem.t - 0.13)) for e in etas])]
+    best = etas[np.argmin([problem.loss(e * np.sin(2 * np.pi * problem.times - 0.13)) for e in etas])]
     # the paper's L1 optimum and the soft-L1 one differ at the phase error's second order (1 - cos 0.13 = 0.8 %)
     assert fit.model.params_si()["eta"] == pytest.approx(best, rel=0.01)
+
+
+class _BlowsUpAbove(_PhaseShiftedProblem):
+    """A stand-in whose simulation blows up for η above ``limit`` [Pa·s], as an explicit step does past its
+    stability bound."""
+
+    def __init__(self, eta_true: float, limit: float):
+        super().__init__(eta_true)
+        self.limit, self.failed = limit, 0
+
+    def simulate(self, law):
+        if float(law(torch.ones(1, dtype=torch.float64))) > self.limit:
+            self.failed += 1
+            raise FloatingPointError("the simulation became non-finite at step 3")
+        return super().simulate(law)
+
+
+def test_a_trial_step_that_blows_up_is_rejected_not_fatal():
+    # the optimum (1 Pa s) lies beyond the stability limit (0.8 Pa s): the step to it blows up, the optimiser
+    # shrinks its region and ends between its start and the limit, with finite readings
+    problem = _BlowsUpAbove(1.0, limit=0.8)
+    fit = fit_model(problem, FitModel.named("newtonian", eta=0.5), max_iterations=8)
+    assert problem.failed > 0
+    assert 0.5 < fit.model.params_si()["eta"] <= 0.8
+    assert np.isfinite(fit.predicted).all() and np.isfinite(fit.jacobian).all()
+    with pytest.raises(FloatingPointError, match="starting point"):
+        fit_model(_BlowsUpAbove(1.0, limit=0.2), FitModel.named("newtonian", eta=0.5))
 
 
 def test_yield_stress_laws_start_as_a_paste_and_as_a_liquid():
@@ -221,6 +248,17 @@ def test_newtonian_viscosity_is_recovered_within_its_interval(newtonian_identifi
     assert result.resolvable["viscosity"]
 
 
+def test_a_lag_free_recording_fits_no_lag(newtonian_recording):
+    # made by the fitting simulator with white noise only: the profiled lag must stay far below the 50 ms ramp,
+    # the fastest change in the reading, and the viscosity stays within its interval
+    result = identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
+                      holdout_fraction=0.0, max_iterations=3, progress=False, sensor_nuisance=("lag",))
+    fit, unc = result.fits["newtonian"], result.uncertainty["newtonian"]
+    assert fit.sensor["lag"] < 0.005
+    assert unc.ci95["eta"][0] < TRUE_ETA < unc.ci95["eta"][1]
+    assert result.summary()["laws"]["newtonian"]["sensor"]["units"] == {"lag": "s"}
+
+
 def test_newtonian_fit_stops_at_the_simulators_viscosity_cap(newtonian_recording):
     # above SimConfig.viscosity_cap the simulated reading no longer changes with η: the fit must end on the cap,
     # flagged at a bound and not identifiable, instead of wandering past it (a 10 Pa s lab fluid ended at 21 Pa s)
@@ -267,6 +305,8 @@ def test_report_files(newtonian_identification):
     assert set(report["apparent_viscosity"]) >= {"zero_shear", "effective_shear_rate", "at_effective_shear_rate",
                                                  "refined"}
     assert report["density"]["value"] == 1000.0
+    assert report["laws"]["newtonian"]["sensor"] == {"units": {}}  # no sensor nuisances by default
+    assert report["family"]["class"] == "newtonian"  # a Newtonian fluid is Newtonian over any band
     assert "newtonian" in paths["md"].read_text()
     assert all(paths[k].stat().st_size > 0 for k in ("forces", "flow_curves", "losses"))
     assert any((out / "tb").iterdir())

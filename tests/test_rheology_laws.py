@@ -170,6 +170,16 @@ def test_cross_with_vanishing_exponent_is_newtonian_above_zero_shear():
     assert bound < 0.02
 
 
+def test_carreau_never_turns_negative_when_it_falls_from_eta_inf():
+    # eta_inf > eta0 with n > 1: eta_inf + (eta0 - eta_inf) sqrt(1 + (lam g)^2) falls without bound; eta is floored
+    # at 0 there and follows the formula until then (the fit's blow-up at eta0 0.37, eta_inf 3.76, lam 1.16, n 2)
+    law = Carreau(eta0=0.37, eta_inf=3.76, lam=1.16, n=2.0, dtype=F64)
+    g = np.logspace(-2, 3, 51)
+    formula = 3.76 + (0.37 - 3.76) * np.sqrt(1.0 + (1.16 * g) ** 2)
+    assert np.all(evaluate(law, g) >= 0.0)
+    assert np.allclose(evaluate(law, g)[formula > 0], formula[formula > 0], rtol=1e-6)
+
+
 # --- parametrisation -----------------------------------------------------------------------------------------------
 
 

@@ -3,7 +3,9 @@
 The base is the identification's selected law with its simulated reading p0 on the diagnosis's samples and the
 reading's derivative with respect to the law's viscosity scale, d p / d ln s = Σ_j ∂p/∂θ_j over the law's stress
 parameters (θ_j = ln value). Both are taken from the identification when it simulated the same samples at the same
-resolution, and otherwise simulated (two runs: the law, and the law with every stress parameter 5 % higher).
+resolution without sensor nuisances, and otherwise simulated (two runs: the law, and the law with every stress
+parameter 5 % higher). The diagnosis models the sensor itself (``sensor_lag``, ``sensor_drift``), so its base is
+the law's bare simulation even when the identification profiled out a sensor offset and lag.
 
 The noise level σ of a reading is estimated from its second differences, x_{k+1} − 2 x_k + x_{k−1}, whose variance
 is 6 σ² for white noise and which cancel the signal's slope (first differences keep it: a stirring force changes by
@@ -80,7 +82,7 @@ def base_from_identification(identification: Identification, problem: StirProble
     law, density = fit.model.material, identification.density["value"]
     same = (identification.problem.config == problem.config
             and np.array_equal(identification.problem.times, problem.times))
-    if not same:
+    if not same or fit.sensor:
         return simulate_base(problem, law, density, "identification")
     column = fit.jacobian[:, stress_columns(law)].sum(axis=1)
     return BaseFit(copy.deepcopy(law), density, fit.predicted.copy(), column, 0, "identification")

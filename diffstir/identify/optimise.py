@@ -24,6 +24,7 @@ import torch
 from scipy import optimize
 
 from .models import FitModel
+from .nuisance import NO_NUISANCE, SensorNuisance, lag_response
 from .problem import StirProblem
 
 #: Smallest step in θ that updates the Broyden Jacobian: 100 float32 ulps of a relative change; a smaller step
@@ -44,8 +45,9 @@ class FitResult:
     Attributes:
         model: the model at the fitted θ.
         theta: fitted θ, (k,).
-        predicted: simulated readings at every compared sample [N], (M,) (fitted and held-out).
-        jacobian: d predicted / d θ at the fit [N], (M, k).
+        predicted: the readings at every compared sample [N], (M,) (fitted and held-out): the simulated ones
+            through the fitted sensor nuisances.
+        jacobian: d predicted / d θ at the fit, the nuisances held [N], (M, k).
         loss: the paper's loss, mean |measured - simulated| over the fitted samples [N].
         holdout_loss: the same over the held-out samples [N] (None without any).
         history: one entry per accepted evaluation: {"evaluation", "loss", "theta"}.
@@ -53,6 +55,8 @@ class FitResult:
         seconds: wall time spent [s].
         message: what stopped the optimiser.
         converged: the optimiser stopped on its tolerances, not on its budget of evaluations.
+        sensor: the fitted sensor nuisances, SI by name (``nuisance.UNITS``; empty when none were fitted).
+        simulated: the simulated readings p before the sensor nuisances [N], (M,) (None: same as predicted).
     """
 
     model: FitModel
@@ -66,12 +70,21 @@ class FitResult:
     seconds: float = 0.0
     message: str = ""
     converged: bool = False
+    sensor: dict[str, float] = field(default_factory=dict)
+    simulated: np.ndarray | None = None
+
+    @property
+    def simulated_readings(self) -> np.ndarray:
+        """p [N], (M,): the simulated readings before the sensor nuisances."""
+        return self.predicted if self.simulated is None else self.simulated
 
 
 class Readings:
     """Simulated readings of a model as a function of θ, cached by θ, counting forward simulations.
 
     ``on_evaluation(model_name, evaluations, loss)`` is called after every simulation (progress bars, logs).
+    A θ whose simulation blows up (``FloatingPointError``) reads NaN, which the trust-region optimiser rejects
+    as a step (it shrinks its region); the starting θ must simulate (``fit_model`` raises otherwise).
     """
 
     def __init__(self, problem: StirProblem, model: FitModel,
@@ -79,21 +92,27 @@ class Readings:
         self.problem, self.model, self.on_evaluation = problem, model, on_evaluation
         self.cache: dict[bytes, np.ndarray] = {}
         self.evaluations = 0
+        self.failures: list[str] = []
 
     def __call__(self, theta: np.ndarray) -> np.ndarray:
         key = np.asarray(theta, dtype=np.float64).tobytes()
         if key not in self.cache:
             self.model.set_theta(theta)
-            with torch.no_grad():
-                reading = self.problem.simulate(self.model.material)
-            self.cache[key] = reading.double().cpu().numpy()
+            try:
+                with torch.no_grad():
+                    reading = self.problem.simulate(self.model.material).double().cpu().numpy()
+            except FloatingPointError as error:
+                self.failures.append(str(error))
+                reading = np.full(self.problem.times.size, np.nan)
+            self.cache[key] = reading
             self.evaluations += 1
             if self.on_evaluation is not None:
                 self.on_evaluation(self.model.name, self.evaluations, self.problem.loss(self.cache[key]))
         return self.cache[key]
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
-        """Forward differences d readings / d θ, (M, k); steps point inwards at an upper bound."""
+        """Forward differences d readings / d θ, (M, k); steps point inwards at an upper bound, and backwards where
+        the forward step's simulation blew up."""
         theta = np.asarray(theta, dtype=np.float64)
         base = self(theta)
         columns = []
@@ -101,7 +120,11 @@ class Readings:
             h = FD_STEP[scale] * (-1.0 if theta[j] + FD_STEP[scale] > self.model.upper[j] else 1.0)
             shifted = theta.copy()
             shifted[j] += h
-            columns.append((self(shifted) - base) / h)
+            column = (self(shifted) - base) / h
+            if not np.isfinite(column).all():
+                shifted[j] = theta[j] - h
+                column = (base - self(shifted)) / h
+            columns.append(column)
         self.model.set_theta(theta)
         return np.stack(columns, axis=1)
 
@@ -165,7 +188,8 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
               learning_rate: float = 0.05, initial_jacobian: np.ndarray | None = None,
               initial_readings: np.ndarray | None = None,
               on_evaluation: Callable[[str, int, float], None] | None = None,
-              on_iteration: Callable[[FitModel, int, float, np.ndarray], None] | None = None) -> FitResult:
+              on_iteration: Callable[[FitModel, int, float, np.ndarray], None] | None = None,
+              sensor: SensorNuisance = NO_NUISANCE) -> FitResult:
     """Fit ``model`` (starting from its current θ) to ``problem``'s fitted samples.
 
     Args:
@@ -178,6 +202,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
             no finite differences are spent at this resolution.
         initial_readings: that coarser simulation's readings [N] at the starting θ, (M,): the coarse Jacobian is
             scaled by the ratio of this simulation's readings to them (``_BroydenJacobian``).
+        sensor: the sensor nuisances profiled out at every θ (``nuisance``; ``lm`` only).
         on_evaluation: called after each forward simulation with (model name, count, loss [N]).
         on_iteration: called after each iteration with (model, iteration, loss [N], θ), e.g. to checkpoint.
     """
@@ -191,10 +216,24 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         room = max(1.0 - cfg.sound_speed * model.dt / cfg.dx, 0.0)
         mu_max = cfg.viscous_safety * room * problem.density * cfg.dx ** 2 / (2 * cfg.dim * model.dt ** 2)
         model.upper[0] = min(model.upper[0], math.log(max(mu_max, 1e-12)))
+    if sensor.fitted and optimizer != "lm":
+        raise ValueError(f"fit.sensor_nuisance = {list(sensor.fitted)} needs fit.optimizer = lm (it is profiled out "
+                         "of the Gauss-Newton steps); set fit.sensor_nuisance = [] for the paper's Adam")
     readings = Readings(problem, model, on_evaluation)
-    train = problem.train
+    train, times = problem.train, problem.times
     measured = problem.measured[train]
     history: list[dict] = []
+    profiles: dict[bytes, dict[str, float]] = {}
+
+    def reading(theta: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+        """The reading [N] at θ through the sensor nuisances profiled there, and their values."""
+        p = readings(theta)
+        if not np.isfinite(p).all():  # a blown-up trial step: rejected by the optimiser
+            return p, {}
+        key = np.asarray(theta, dtype=np.float64).tobytes()
+        if key not in profiles:
+            profiles[key] = sensor.profile(p, problem.measured, times, train)
+        return sensor.apply(p, times, profiles[key]), profiles[key]
 
     def record(theta: np.ndarray, loss: float) -> None:
         history.append({"evaluation": readings.evaluations, "loss": loss, "theta": [float(t) for t in theta]})
@@ -202,20 +241,24 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
             on_iteration(model, len(history), loss, theta)
 
     theta0 = np.clip(model.theta(), model.lower, model.upper)
+    if not np.isfinite(readings(theta0)).all():
+        raise FloatingPointError(f"{model.name}: the fit's starting point does not simulate: {readings.failures[-1]}")
     if optimizer == "lm":
-        scale = residual_scale(readings(theta0)[train] - measured,
+        scale = residual_scale(reading(theta0)[0][train] - measured,
                                noise_scale(problem.measured, problem.recording.sensor.resolution))
 
         def residuals(step):
-            return readings(theta0 + step)[train] - measured
+            return reading(theta0 + step)[0][train] - measured
 
         broyden = _BroydenJacobian(readings, initial_jacobian, initial_readings)
 
         def jacobian(step):
             theta = theta0 + step
             jac = broyden(theta)
-            record(theta, problem.loss(readings(theta)))
-            return jac[train]
+            y, values = reading(theta)
+            record(theta, problem.loss(y))
+            return sensor.projected(lag_response(jac, times, values.get("lag", 0.0)), readings(theta), times,
+                                    values, train)
 
         # in steps from the start, so the first trust region is TRUST_RADIUS whatever θ's units (the dogbox
         # method's box starts at the size of x0 in x_scale units, or 1 at x0 = 0)
@@ -233,12 +276,14 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
     # rounding-sized step would otherwise cost a simulation and a degenerate Broyden update
     theta = np.clip(np.asarray(best, dtype=np.float64), model.lower, model.upper)
     model.set_theta(theta)
-    predicted = readings(theta)
+    predicted, values = reading(theta)
     jac = readings.jacobian(theta) if initial_jacobian is None or optimizer != "lm" else broyden(theta)
-    return FitResult(model=model, theta=theta, predicted=predicted, jacobian=jac, loss=problem.loss(predicted),
+    return FitResult(model=model, theta=theta, predicted=predicted,
+                     jacobian=lag_response(jac, times, values.get("lag", 0.0)), loss=problem.loss(predicted),
                      holdout_loss=problem.loss(predicted, train=False),
                      history=history, evaluations=readings.evaluations, seconds=time.perf_counter() - start,
-                     message=str(message), converged=bool(converged))
+                     message=str(message), converged=bool(converged), sensor=dict(values),
+                     simulated=readings(theta) if sensor.fitted else None)
 
 
 def _adam(problem: StirProblem, model: FitModel, readings: Readings, theta0: np.ndarray, iterations: int,

@@ -26,7 +26,9 @@ from .initial import (
     LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, initial_models,
     mean_stirring_speed,
 )
+from .family import law_family
 from .models import FitModel
+from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
 from .optimise import FitResult, fit_model, noise_scale
 from .problem import StirProblem, Windows
 from .selection import bic, select
@@ -83,12 +85,15 @@ class Identification:
                 "effective_samples": unc.effective_samples,
                 "apparent_viscosity": self.apparent_viscosity(name),
                 "evaluations": fit.evaluations, "seconds": fit.seconds, "optimizer_message": fit.message,
+                "sensor": {**fit.sensor, "units": {k: UNITS[k] for k in fit.sensor}},
+                "family": self.family(name),
             }
         laws_only = {k: v for k, v in laws.items() if k != "corotated"}
         return {
             "recording": str(self.recording.path) if self.recording.path else self.recording.name,
             "density": self.density,
             "selected": self.selection["selected"],
+            "family": laws[self.selection["selected"]]["family"],
             "selection": {k: v for k, v in self.selection.items() if k != "bic"},
             "laws": laws_only,
             "baseline": laws.get("corotated"),
@@ -103,6 +108,15 @@ class Identification:
             "seconds": self.seconds,
         }
 
+    def family(self, name: str) -> dict | None:
+        """How model ``name`` behaves over the probed shear rates (``family.law_family``); None when the stir
+        probed a single shear rate."""
+        band = self.probed_shear_rates()
+        if not band[1] > band[0] > 0.0:
+            return None
+        fit = self.fits[name]
+        return law_family(fit.model, fit.theta, self.uncertainty[name], band)
+
     def probed_shear_rates(self) -> tuple[float, float]:
         """The band of effective shear rates the stir covered [1/s]: γ̇_eff scaled by the rod's slowest and fastest
         speeds in the fitted window relative to its mean (speeds below 5 % of the top speed are left out)."""
@@ -116,7 +130,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              baseline: bool = True, window: float | None = 2.0, holdout_fraction: float = 0.25,
              max_iterations: int = 6, optimizer: str = "lm", selection: str = "bic",
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
-             coarse: SimConfig | None = None, fine_iterations: int = 3) -> Identification:
+             coarse: SimConfig | None = None, fine_iterations: int = 3,
+             sensor_nuisance=DEFAULT_NUISANCES) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -135,13 +150,17 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         coarse: a coarser, faster simulation to fit on first (coarse-to-fine): every model is fitted there from
             scratch, then refined on ``config`` for ``fine_iterations`` Broyden steps that start from the coarse
             fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
+        sensor_nuisance: sensor parameters profiled out of every fit (``nuisance``: "lag", "offset"; () for
+            none).
     """
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)
     problem = StirProblem(recording, config, density_report["value"], windows)
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
-    settings = {"models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
+    sensor = SensorNuisance(tuple(sensor_nuisance))
+    settings = {"sensor_nuisance": list(sensor.fitted),
+                "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
                 "max_iterations": max_iterations, "dim": config.dim, "dx": config.dx,
                 "sound_speed": config.sound_speed, "density": density_report["value"],
                 "shear_rate_probes": PROBE_INDEX_STEP,
@@ -170,7 +189,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                 continue
             jacobian = start_readings = None
             if start is not None:
-                model, jacobian, start_readings = start[name].model.copy(), start[name].jacobian, start[name].predicted
+                model, jacobian = start[name].model.copy(), start[name].jacobian
+                start_readings = start[name].simulated_readings
                 if name == "corotated":  # keep its apparent viscosity mu * dt across the change of step
                     model = FitModel.named("corotated", dt=dt,
                                            shear_modulus=start[name].model.params_si()["shear_modulus"]
@@ -196,7 +216,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             budget = iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
             tries = [fit_model(fit_problem, model, max_iterations=budget, optimizer=optimizer,
                                initial_jacobian=jacobian, initial_readings=start_readings,
-                               on_evaluation=tracker.evaluation, on_iteration=on_iteration) for model in models]
+                               on_evaluation=tracker.evaluation, on_iteration=on_iteration, sensor=sensor)
+                     for model in models]
             fits[name] = min(tries, key=lambda fit: fit.loss)
             done[name] = _serialise(fits[name])
             running.pop(name, None)
@@ -238,13 +259,15 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
 
     train = problem.train
     residuals = {name: (fit.predicted - problem.measured)[train] for name, fit in fits.items()}
-    uncertainty = {name: laplace(fit.model, fit.theta, fit.jacobian[train], residuals[name])
+    uncertainty = {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
+                                                                        problem.times, fit.sensor, train),
+                                 residuals[name])
                    for name, fit in fits.items()}
     # one sample count for every model, or BIC would compare likelihoods of different data: that of the
     # best-fitting model, whose residuals are the closest to the noise
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples
-    bics = {name: bic(r, fits[name].model.size, n_effective) for name, r in residuals.items()}
+    bics = {name: bic(r, fits[name].model.size + sensor.size, n_effective) for name, r in residuals.items()}
     laws = [n for n in fits if n != "corotated"]
     chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
                     {n: fits[n].holdout_loss for n in laws}, selection)
@@ -296,7 +319,8 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
 def _serialise(fit: FitResult) -> dict:
     return {"theta": fit.theta.tolist(), "predicted": fit.predicted.tolist(), "jacobian": fit.jacobian.tolist(),
             "history": fit.history, "evaluations": fit.evaluations, "seconds": fit.seconds, "message": fit.message,
-            "converged": fit.converged, "params": fit.model.params_si()}
+            "converged": fit.converged, "params": fit.model.params_si(), "sensor": fit.sensor,
+            "simulated": None if fit.simulated is None else fit.simulated.tolist()}
 
 
 def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
@@ -307,7 +331,8 @@ def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> 
                      jacobian=np.array(saved["jacobian"]), loss=problem.loss(predicted),
                      holdout_loss=problem.loss(predicted, train=False), history=saved["history"],
                      evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"],
-                     converged=saved.get("converged", False))
+                     converged=saved.get("converged", False), sensor=saved.get("sensor", {}),
+                     simulated=None if saved.get("simulated") is None else np.array(saved["simulated"]))
 
 
 def _load_checkpoint(path: str | Path | None, settings: dict) -> dict:

@@ -34,6 +34,15 @@ def markdown(summary: dict) -> str:
              f"- apparent viscosity at the effective shear rate: {av['at_effective_shear_rate']:.4g} Pa·s "
              f"(95 % CI {av['at_effective_shear_rate_ci95'][0]:.4g}-{av['at_effective_shear_rate_ci95'][1]:.4g}); "
              f"at zero shear: {av['zero_shear']:.4g} Pa·s"]
+    family = summary["family"]
+    if family is not None:
+        lo, hi = family["slope_ci95"]
+        lines.append(f"- over the probed band the selected law is **{family['class'].replace('_', '-')}**: "
+                     f"d ln η / d ln γ̇ = {family['slope']:.3g} (95 % CI {format_bound(lo)} to {format_bound(hi)})")
+    sensor = summary["laws"].get(sel, summary.get("baseline") or {}).get("sensor") or {}
+    if any(k != "units" for k in sensor):
+        lines.append("- sensor nuisances fitted with it: " + ", ".join(
+            f"{k} {v:.3g} {sensor['units'][k]}" for k, v in sensor.items() if k != "units"))
     pre, refined = summary["preliminary"], av["refined"]
     lines.append(f"- preliminary (Newtonian ladder, {pre['estimator']['dim']}-D dx = {pre['estimator']['dx']} m) "
                  f"viscosity: {pre['viscosity']:.4g} Pa·s at a mean stirring speed of "

@@ -243,7 +243,8 @@ class Carreau(RheologyLaw):
     """eta = eta_inf + (eta0 - eta_inf) (1 + (lam g)^2)^((n-1)/2).
 
     eta0, eta_inf [Pa·s], lam [s], n [1]. With eta0 > eta_inf, n < 1 thins and n > 1 thickens; eta_inf is not
-    constrained below eta0.
+    constrained below eta0. With eta_inf > eta0 and n > 1 the formula falls without bound and turns negative at
+    high shear rates, which no fluid does (and no explicit step survives): eta is floored at 0 there.
     """
 
     name = "carreau"
@@ -265,7 +266,7 @@ class Carreau(RheologyLaw):
     def viscosity(self, shear_rate: Tensor, params: Mapping[str, Tensor]) -> Tensor:
         x = params["lam"] * shear_rate
         shape = (1.0 + x * x) ** ((params["n"] - 1.0) / 2.0)
-        return params["eta_inf"] + (params["eta0"] - params["eta_inf"]) * shape
+        return (params["eta_inf"] + (params["eta0"] - params["eta_inf"]) * shape).clamp(min=0.0)
 
 
 class Cross(RheologyLaw):
