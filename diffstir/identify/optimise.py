@@ -103,7 +103,7 @@ class Readings:
                     reading = self.problem.simulate(self.model.material).double().cpu().numpy()
             except FloatingPointError as error:
                 self.failures.append(str(error))
-                reading = np.full(self.problem.times.size, np.nan)
+                reading = np.full(len(self.problem.measured), np.nan)
             self.cache[key] = reading
             self.evaluations += 1
             if self.on_evaluation is not None:
@@ -220,7 +220,8 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         raise ValueError(f"fit.sensor_nuisance = {list(sensor.fitted)} needs fit.optimizer = lm (it is profiled out "
                          "of the Gauss-Newton steps); set fit.sensor_nuisance = [] for the paper's Adam")
     readings = Readings(problem, model, on_evaluation)
-    train, times = problem.train, problem.times
+    train = problem.train
+    times = problem.times if sensor.fitted else None  # sample times [s], needed by the lag only
     measured = problem.measured[train]
     history: list[dict] = []
     profiles: dict[bytes, dict[str, float]] = {}
