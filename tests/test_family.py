@@ -10,6 +10,7 @@ from diffstir.identify.family import law_family
 from diffstir.identify.uncertainty import Uncertainty
 
 BAND = (1.0, 4.0)  # 1/s: the probed band of the non-Newtonian benchmark's stir
+RATE = 2.0  # 1/s: its effective shear rate
 
 
 def known(model: FitModel, std: float = 0.01) -> Uncertainty:
@@ -21,7 +22,7 @@ def known(model: FitModel, std: float = 0.01) -> Uncertainty:
 
 def family(name: str, std: float = 0.01, **params) -> dict:
     model = FitModel.named(name, **params)
-    return law_family(model, model.theta(), known(model, std), BAND)
+    return law_family(model, model.theta(), known(model, std), BAND, RATE)
 
 
 def test_the_class_is_the_laws_behaviour_over_the_band_not_its_name():
@@ -41,8 +42,13 @@ def test_the_class_is_the_laws_behaviour_over_the_band_not_its_name():
 def test_a_yield_stress_counts_when_it_carries_the_stress():
     ketchup = family("herschel_bulkley", tau_y=2.66, k=3.44, n=0.5)
     assert ketchup["class"] == "yield_stress"
-    # τ_y / (τ_y + k γ̇ⁿ) at the band's lowest rate, to the regularisation's exp(−γ̇/γ̇_c) and float32
-    assert ketchup["yield_share"] == pytest.approx(2.66 / (2.66 + 3.44), rel=1e-3)
+    # τ_y / (τ_y + k γ̇ⁿ) at the effective shear rate, to the regularisation's exp(−γ̇/γ̇_c) and float32
+    assert ketchup["yield_share"] == pytest.approx(2.66 / (2.66 + 3.44 * RATE**0.5), rel=1e-3)
+    # the thickening fit of the lab's power-law fluid (n 1.3): its 0.02 Pa yield stress is 1.5 % of the stress at
+    # γ̇_eff 4 1/s, though it would carry most of it at the ramps' slowest rates
+    model = FitModel.named("herschel_bulkley", tau_y=0.0221, k=0.167, n=1.51)
+    fitted = law_family(model, model.theta(), known(model), (0.2, 4.5), 4.05)
+    assert fitted["class"] == "shear_thickening" and fitted["yield_share"] < 0.02
 
 
 def test_the_slope_interval_is_reported_not_decisive():
@@ -56,4 +62,4 @@ def test_the_slope_interval_is_reported_not_decisive():
 def test_a_band_of_one_shear_rate_is_refused():
     model = FitModel.named("newtonian", eta=1.0)
     with pytest.raises(ValueError, match="1/s"):
-        law_family(model, model.theta(), known(model), (2.0, 2.0))
+        law_family(model, model.theta(), known(model), (2.0, 2.0), 2.0)

@@ -5,8 +5,9 @@ a Cross law thins for every n > 0, and a Herschel-Bulkley law with a tiny yield 
 class is read off the fitted law over the probed band [γ̇_lo, γ̇_hi] [1/s]:
 
 * **yield_stress** when the law has a yield stress τ_y that carries at least ``YIELD_SHARE`` of its stress
-  τ = η γ̇ at γ̇_lo (a smaller one changes the apparent viscosity over the band by less than the 10 % an
-  identification resolves);
+  τ = η γ̇ at the stir's effective shear rate γ̇_eff (a smaller one changes the apparent viscosity there by less
+  than the 10 % an identification resolves; at the band's low end, set by the ramps, any τ_y of a thickening law
+  would dominate);
 * **newtonian** when η changes across the band by less than ``NEWTONIAN_CHANGE``;
 * otherwise **shear_thinning** or **shear_thickening** by the sign of the chord slope
   s = [ln η(γ̇_hi) − ln η(γ̇_lo)] / ln(γ̇_hi/γ̇_lo).
@@ -29,7 +30,7 @@ from .uncertainty import Z95, Uncertainty
 
 CLASSES = ("newtonian", "shear_thinning", "shear_thickening", "yield_stress")
 
-#: Least share of the stress at the band's lowest shear rate that a yield stress must carry to count [1].
+#: Least share of the stress at the effective shear rate that a yield stress must carry to count [1].
 YIELD_SHARE = 0.1
 
 #: Largest change of η across the band, |ln η(γ̇_hi)/η(γ̇_lo)|, that is still Newtonian: 10 %, what an
@@ -37,13 +38,18 @@ YIELD_SHARE = 0.1
 NEWTONIAN_CHANGE = math.log(1.1)
 
 
-def law_family(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty, band: tuple[float, float]) -> dict:
-    """The class of ``model`` at ``theta`` over the shear rates ``band`` [1/s] (module docstring):
-    {"class", "slope", "slope_ci95", "yield_share", "band"}."""
+def law_family(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty, band: tuple[float, float],
+               effective_shear_rate: float) -> dict:
+    """The class of ``model`` at ``theta`` over the shear rates ``band`` [1/s] of a stir whose effective shear
+    rate is ``effective_shear_rate`` [1/s] (module docstring): {"class", "slope", "slope_ci95", "yield_share",
+    "band"}."""
     lo, hi = float(band[0]), float(band[1])
     if not (0.0 < lo < hi and math.isfinite(hi)):
         raise ValueError(f"band = {band}; expected shear rates 0 < lo < hi in 1/s")
-    eta, grad = model.viscosity(np.array([lo, hi]), theta)
+    if not (effective_shear_rate > 0 and math.isfinite(effective_shear_rate)):
+        raise ValueError(f"effective_shear_rate = {effective_shear_rate}; expected a positive rate in 1/s")
+    eta, grad = model.viscosity(np.array([lo, hi, effective_shear_rate]), theta)
+    eta, grad, eta_eff = eta[:2], grad[:2], float(eta[2])
     width = math.log(hi / lo)
     slope = float(np.log(eta[1] / eta[0])) / width
     g = (grad[1] - grad[0]) / width
@@ -56,7 +62,7 @@ def law_family(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty, ban
     share = 0.0
     params = model.params_si()
     if "tau_y" in params:
-        share = params["tau_y"] / max(float(eta[0]) * lo, 1e-300)
+        share = params["tau_y"] / max(eta_eff * effective_shear_rate, 1e-300)
     if share >= YIELD_SHARE:
         cls = "yield_stress"
     elif abs(slope) * width < NEWTONIAN_CHANGE:

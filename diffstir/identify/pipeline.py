@@ -115,7 +115,7 @@ class Identification:
         if not band[1] > band[0] > 0.0:
             return None
         fit = self.fits[name]
-        return law_family(fit.model, fit.theta, self.uncertainty[name], band)
+        return law_family(fit.model, fit.theta, self.uncertainty[name], band, self.effective_shear_rate)
 
     def probed_shear_rates(self) -> tuple[float, float]:
         """The band of effective shear rates the stir covered [1/s]: γ̇_eff scaled by the rod's slowest and fastest
