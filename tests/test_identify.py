@@ -323,10 +323,12 @@ def test_fit_app_writes_a_report(tmp_path, monkeypatch):
     out = tmp_path / "out"
     monkeypatch.setattr(sys, "argv", ["diffstir-fit", f"recording={path}", f"out={out}", "model=[newtonian]",
                                       "baseline=false", "density=1000", "~coarse", "sim.dx=0.01",
-                                      "fit.window=0.3", "fit.max_iterations=3", "progress=false"])
+                                      "fit.window=0.3", "fit.max_iterations=3", "fit.sensor_nuisance=[lag]",
+                                      "progress=false"])
     main()
     report = json.loads((out / "report.json").read_text())
     assert report["selected"] == "newtonian"
+    assert report["laws"]["newtonian"]["sensor"]["units"] == {"lag": "s"}  # the option reached the fit
     assert report["density"] == {"value": 1000.0, "ci95": None, "unit": "kg/m^3", "source": "config"}
     eta = report["laws"]["newtonian"]["params"]["eta"]
     assert eta == pytest.approx(TRUE_ETA, rel=0.1)

@@ -98,3 +98,9 @@ def test_a_fit_with_the_nuisances_finds_the_viscosity_that_the_lag_would_bias():
     assert fitted.sensor["offset"] == pytest.approx(0.003, abs=5e-4)
     assert fitted.loss < 0.5 * plain.loss
     assert np.allclose(fitted.simulated_readings, eta * problem.signal, rtol=5e-3)
+
+
+def test_the_papers_adam_refuses_nuisances_it_cannot_profile():
+    with pytest.raises(ValueError, match="fit.sensor_nuisance.*optimizer"):
+        fit_model(_LaggedProblem(0.5), FitModel.named("newtonian", eta=1.0), optimizer="adam",
+                  sensor=SensorNuisance(("lag",)))
