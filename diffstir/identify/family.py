@@ -26,9 +26,7 @@ import math
 import numpy as np
 
 from .models import FitModel
-from .uncertainty import Z95, Uncertainty
-
-CLASSES = ("newtonian", "shear_thinning", "shear_thickening", "yield_stress")
+from .uncertainty import Z95, Uncertainty, delta_variance
 
 #: Least share of the stress at the effective shear rate that a yield stress must carry to count [1].
 YIELD_SHARE = 0.1
@@ -52,13 +50,7 @@ def law_family(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty, ban
     eta, grad, eta_eff = eta[:2], grad[:2], float(eta[2])
     width = math.log(hi / lo)
     slope = float(np.log(eta[1] / eta[0])) / width
-    g = (grad[1] - grad[0]) / width
-    cov = uncertainty.covariance
-    seen = np.isfinite(np.diag(cov))
-    if np.any(np.abs(g[~seen]) > 1e-9):
-        half = math.inf
-    else:
-        half = Z95 * math.sqrt(max(float(g[seen] @ cov[np.ix_(seen, seen)] @ g[seen]), 0.0))
+    half = Z95 * math.sqrt(float(delta_variance(((grad[1] - grad[0]) / width)[None], uncertainty.covariance)[0]))
     share = 0.0
     params = model.params_si()
     if "tau_y" in params:

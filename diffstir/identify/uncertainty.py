@@ -89,9 +89,15 @@ def log_viscosity_interval(model: FitModel, theta: np.ndarray, covariance: np.nd
     """Apparent viscosity [Pa·s] at ``shear_rate`` [1/s] with its 95 % band (delta method on ln η):
     ln η ± 1.96 sqrt(g cov gᵀ), g = d ln η / d θ. Returns (η, lower, upper)."""
     eta, grad = model.viscosity(np.atleast_1d(shear_rate), theta)
+    half = Z95 * np.sqrt(delta_variance(grad, covariance))
+    return eta, eta * np.exp(-half), eta * np.exp(half)
+
+
+def delta_variance(gradients: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Delta-method variances g cov gᵀ of functions of θ with ``gradients`` g (S, k), ≥ 0; infinite where a
+    gradient has a component along a direction the data do not see (an infinite row of ``covariance``)."""
     blind = ~np.isfinite(np.diag(covariance))
     seen = ~blind
-    var = np.einsum("si,ij,sj->s", grad[:, seen], covariance[np.ix_(seen, seen)], grad[:, seen])
-    var = np.where(np.abs(grad[:, blind]).max(axis=1, initial=0.0) > 1e-9, np.inf, var)
-    half = Z95 * np.sqrt(np.maximum(var, 0.0))
-    return eta, eta * np.exp(-half), eta * np.exp(half)
+    var = np.einsum("si,ij,sj->s", gradients[:, seen], covariance[np.ix_(seen, seen)], gradients[:, seen])
+    var = np.where(np.abs(gradients[:, blind]).max(axis=1, initial=0.0) > 1e-9, np.inf, var)
+    return np.maximum(var, 0.0)
