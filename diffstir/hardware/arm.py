@@ -64,7 +64,12 @@ class Arm(ABC):
 
 
 class ReplayArm(Arm):
-    """An ideal arm: reports the trajectory's own poses at ``rate`` [Hz], in real time divided by ``speedup``."""
+    """An ideal arm: reports the trajectory's own poses at ``rate`` [Hz], in real time divided by ``speedup``.
+
+    The arm keeps its own clock: pose ``i`` is stamped ``t0 + i / rate`` and placed at programme time
+    ``i * speedup / rate``, so a host thread that is scheduled late delivers the poses it missed in a burst
+    (as a buffered controller would) instead of leaving a gap in the pose stream.
+    """
 
     name = "replay arm"
 
@@ -77,11 +82,13 @@ class ReplayArm(Arm):
         stop = stop or threading.Event()
         t0 = time.monotonic()
         for i in itertools.count():
-            now = time.monotonic()
-            tau = min((now - t0) * self.speedup, trajectory.duration)
+            stamp = t0 + i / self.rate
+            if stop.wait(max(0.0, stamp - time.monotonic())):
+                return
+            tau = min(i * self.speedup / self.rate, trajectory.duration)
             xy, z, _ = trajectory.poses(trajectory.t[0] + tau)
-            on_pose(Pose(now, float(xy[0]), float(xy[1]), float(z)))
-            if tau >= trajectory.duration or stop.wait(max(0.0, t0 + (i + 1) / self.rate - time.monotonic())):
+            on_pose(Pose(stamp, float(xy[0]), float(xy[1]), float(z)))
+            if tau >= trajectory.duration:
                 return
 
 

@@ -18,7 +18,9 @@ The stir table: ``t`` is the sensor's clock, zero at the first row. Each sample'
 clock alignment (``ClockAligner``); the rod's pose is interpolated linearly at h; the programme time is
 tau = h - (host time of the arm's first pose); force = a G(counts) + b - baseline(tau) (``Calibration``,
 ``Baseline``), clipped at 0 for a one-sided sensor. Samples outside the span of the arm's poses, and samples
-that saturate the divider, are only in stir-adc.csv.
+that saturate the divider, are only in stir-adc.csv. A gap in the arm's poses longer than ``POSE_GAP_FACTOR``
+median intervals (a late host thread, a dropped packet) is warned about and kept in the step's ``largest_pose_gap``
+[s]: the rod's position across it is a straight chord.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import datetime
 import math
 import os
 import re
+import statistics
 import threading
 import time
 import warnings
@@ -52,6 +55,7 @@ from diffstir.trajectory import Trajectory
 FORMAT = "diffstir-session/1"
 SESSION_FILE = "session.yaml"
 GRAVITY = 9.81  # m/s^2, as in the recording format
+POSE_GAP_FACTOR = 5.0  # a pose interval this many times the median one is a gap worth a warning
 
 
 class _Log:
@@ -119,6 +123,17 @@ class _Poses:
         w = (h - self.t[i - 1]) / (self.t[i] - self.t[i - 1])
         a, b = self.xyz[i - 1], self.xyz[i]
         return tuple(a[k] + w * (b[k] - a[k]) for k in range(3))
+
+    def largest_gap(self) -> tuple[float, float, float]:
+        """The longest interval between poses [s], the programme time it starts at [s], and the median
+        interval [s]; zeros with fewer than two poses."""
+        with self._lock:
+            t = list(self.t)
+        if len(t) < 2:
+            return 0.0, 0.0, 0.0
+        gaps = [b - a for a, b in zip(t, t[1:])]
+        i = max(range(len(gaps)), key=gaps.__getitem__)
+        return gaps[i], t[i] - t[0], statistics.median(gaps)
 
 
 def _write_yaml_atomic(path: Path, data: dict) -> None:
@@ -404,8 +419,13 @@ class Session:
             if pending:  # after a fault: keep what the poses so far can place; the fault itself propagates
                 with contextlib.suppress(Exception):
                     emit()
+        gap, start, median = poses.largest_gap()
+        if gap > POSE_GAP_FACTOR * median:
+            warnings.warn(f"the {self.arm.name} reported no pose for {gap:.3f} s from programme time {start:.3f} s "
+                          f"(its median interval is {median * 1e3:.1f} ms); the rod's position there is a straight "
+                          "chord between the poses either side", HardwareWarning, stacklevel=3)
         fit = clock.fit()
-        return {**counts, "after_motion": len(pending), "poses": len(poses.t),
+        return {**counts, "after_motion": len(pending), "poses": len(poses.t), "largest_pose_gap": gap,
                 "skipped_lines": self.adc.skipped,
                 "clock": {"offset": fit.offset, "rate": fit.rate, "latency": fit.latency}}
 

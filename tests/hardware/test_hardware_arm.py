@@ -34,6 +34,23 @@ def test_replay_plays_in_real_time_with_speedup():
         assert (p.x, p.y) == pytest.approx(tuple(xy), abs=2e-4)
 
 
+def test_replay_keeps_its_own_clock_when_the_host_is_late():
+    trajectory = circle(0.02, 0.1, 0.3, ramp_time=0.1)
+    poses = []
+
+    def slow_listener(pose):
+        poses.append(pose)
+        if len(poses) == 5:
+            time.sleep(0.1)  # the host thread is late by 10 pose intervals
+
+    ReplayArm(rate=100).follow(trajectory, slow_listener)
+    stamps = np.array([p.t for p in poses])
+    assert len(poses) == 31 and np.allclose(np.diff(stamps), 0.01)
+    for p in poses:
+        xy, _, _ = trajectory.poses(p.t - poses[0].t)
+        assert (p.x, p.y) == pytest.approx(tuple(xy), abs=1e-12)
+
+
 def test_replay_stops_when_asked():
     stop, poses = threading.Event(), []
     worker = threading.Thread(target=ReplayArm().follow, args=(circle(0.02, 0.1, 30.0), poses.append, stop))

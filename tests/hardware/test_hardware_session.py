@@ -14,10 +14,12 @@ import pytest
 import yaml
 
 from diffstir.hardware import (
-    DeviceDisconnected, GripperError, HardwareWarning, ReplayArm, SensorStalled, SerialADC, Session, read_session,
+    DeviceDisconnected, GripperError, HardwareWarning, Pose, ReplayArm, SensorStalled, SerialADC, Session,
+    read_session,
 )
 from diffstir.hardware.emulators import nominal_calibration
 from diffstir.hardware.gripper import AG95Gripper
+from diffstir.hardware.session import POSE_GAP_FACTOR
 from diffstir.recording import load_recording
 from diffstir.trajectory import circle, stationary
 
@@ -73,6 +75,7 @@ def test_clean_session(tmp_path, rig, adc_emulator, gripper_emulator):
     rec = load_recording(path)
     assert rec.complete and rec.fluid == "water" and rec.density.rod_weight == 0.52
     assert rec.t[0] == 0 and rec.t.size == meta["steps"]["stir"]["rows"] == pytest.approx(RATE * 1.2, rel=0.1)
+    assert meta["steps"]["stir"]["largest_pose_gap"] < POSE_GAP_FACTOR / 125
     assert np.hypot(rec.x, rec.y) == pytest.approx(0.02, abs=5e-4)  # chords between poses: < 2.5 %
     expected = nominal_calibration().force(rec.raw) - baseline.mean
     assert rec.force == pytest.approx(expected, abs=1e-9)
@@ -173,3 +176,31 @@ def test_sessions_are_numbered_and_the_wall_is_checked(tmp_path, rig, adc_emulat
             _session(tmp_path, rig, adc).stir(circle(0.035, 0.2, 1.0))
     assert names == ["oil-1", "oil-2"]
     assert yaml.safe_load((tmp_path / "runs" / "oil-1" / "session.yaml").read_text())["status"] == "running"
+
+
+class _StutteringArm(ReplayArm):
+    """A replay arm whose link drops every pose stamped within ``gap`` [s] after ``at`` [s] of the programme."""
+
+    def __init__(self, at: float, gap: float) -> None:
+        super().__init__(rate=125)
+        self.at, self.gap = at, gap
+
+    def follow(self, trajectory, on_pose, stop=None):
+        first = []
+
+        def forward(pose: Pose) -> None:
+            first.append(first[0] if first else pose.t)
+            if not self.at < pose.t - first[0] < self.at + self.gap:
+                on_pose(pose)
+
+        super().follow(trajectory, forward, stop)
+
+
+def test_a_gap_in_the_poses_is_warned_about_and_kept(tmp_path, rig, adc_emulator):
+    emulator = adc_emulator(sample_rate=RATE, force=TRUE_FORCE)
+    with SerialADC(emulator.port) as adc, pytest.warns(HardwareWarning, match=r"no pose for 0\.1\d\d s"), \
+            Session(tmp_path / "runs", adc=adc, arm=_StutteringArm(at=0.5, gap=0.11),
+                    calibration=nominal_calibration(), flush_interval=FLUSH, **rig) as session:
+        session.stir(circle(0.02, 0.2, 1.2, ramp_time=0.1))
+    gap = read_session(session.path)["steps"]["stir"]["largest_pose_gap"]
+    assert 0.11 <= gap <= 0.11 + 2 / 125  # the dropped span plus at most the two interval ends
