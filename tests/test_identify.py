@@ -10,13 +10,14 @@ import torch
 
 from diffstir.identify import FitModel, identify
 from diffstir.identify.initial import YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models
-from diffstir.identify.optimise import _BroydenJacobian, fit_model
+from diffstir.identify.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
 from diffstir.identify.problem import StirProblem, Windows, rig_from_recording
 from diffstir.identify.selection import bic, select
-from diffstir.identify.uncertainty import effective_samples, laplace
+from diffstir.identify.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
 from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.identify.nuisance import lag_response
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec,
-                                sensor_reading_np)
+                                first_order_response, sensor_reading_np)
 from diffstir.rheology import Carreau, Newtonian
 from diffstir.trajectory import circle
 
@@ -25,18 +26,20 @@ NOISE = 0.002  # N, the synthetic sensor's white noise
 TRUE_ETA = 0.8  # Pa s
 
 
-def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST):
-    """A recording of ``law`` stirred on a circle, made with the fitting simulator itself plus white noise."""
+def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST, time_constant=None):
+    """A recording of ``law`` stirred on a circle, made with the fitting simulator itself plus white noise, through
+    a sensor of first-order ``time_constant`` [s] that the recording states."""
     traj = circle(radius=0.015, speed=0.06, duration=duration, ramp_time=0.05, sample_rate=250)
     cup, rod = CupGeometry(radius=0.0425, fill_height=0.13), RodGeometry(radius=0.0125, immersion_depth=0.08)
-    sensor = SensorSpec(mode="tangential", resolution=0.001, sample_rate=250)
+    sensor = SensorSpec(mode="tangential", resolution=0.001, sample_rate=250, time_constant=time_constant)
     blank = Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                       force=np.zeros(len(traj.t)), name="synthetic")
     with torch.no_grad():
         result = StirringSimulator(law, rig_from_recording(blank), config, density=1000.0)(traj)
     t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
     force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
-    reading = sensor_reading_np(force, blank.velocity(), sensor)
+    reading = first_order_response(torch.from_numpy(sensor_reading_np(force, blank.velocity(), sensor)), traj.t,
+                                   time_constant).numpy()
     reading += np.random.default_rng(seed).normal(0.0, noise, reading.shape)
     return Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                      force=reading, name="synthetic")
@@ -180,6 +183,21 @@ def test_laplace_covariance_is_the_least_squares_covariance_for_white_noise():
     np.testing.assert_allclose(unc.covariance, expected, rtol=3 * 2 / math.sqrt(400))
 
 
+def test_a_relative_force_error_moves_log_parameters_together():
+    # readings p = a u + b v with θ = (ln a, ln b): J = [a u, b v] and p (1 + ε) is fitted by a, b both scaled by
+    # (1 + ε), so the model error adds σ_m² to every entry of cov(θ) (θ's shift J⁺ p = (1, 1))
+    u, v = np.linspace(0.0, 1.0, 300), np.cos(np.linspace(0.0, 6.0, 300))
+    a, b = 0.2, 0.05
+    jacobian, readings = np.column_stack([a * u, b * v]), a * u + b * v
+    residuals = np.random.default_rng(3).normal(0.0, 0.01, 300)
+    model = FitModel.named("power_law", k=1.0, n=1.0)
+    bare = laplace(model, model.theta(), jacobian, residuals)
+    with_error = laplace(model, model.theta(), jacobian, residuals, readings, model_error=0.03)
+    np.testing.assert_allclose(with_error.covariance - bare.covariance, np.full((2, 2), 0.03**2), rtol=1e-9)
+    assert laplace(model, model.theta(), jacobian, residuals, readings, 0.0).covariance.tolist() == \
+        bare.covariance.tolist()
+
+
 def test_effective_samples_of_an_ar1_series():
     rng = np.random.default_rng(2)
     rho, n = 0.8, 20000
@@ -225,6 +243,8 @@ def test_windows_split_and_too_short_recordings(newtonian_recording):
 def test_missing_density_names_the_file_and_unit(newtonian_recording):
     with pytest.raises(RecordingError, match="kg/m\\^3"):
         identify(newtonian_recording, ["newtonian"], config=FAST, baseline=False, progress=False)
+    with pytest.raises(ValueError, match="fit.model_error = -0.03; expected a relative force error"):
+        identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, model_error=-0.03)
 
 
 @pytest.fixture(scope="module")
@@ -257,6 +277,29 @@ def test_a_lag_free_recording_fits_no_lag(newtonian_recording):
     assert fit.sensor["lag"] < 0.005
     assert unc.ci95["eta"][0] < TRUE_ETA < unc.ci95["eta"][1]
     assert result.summary()["laws"]["newtonian"]["sensor"]["units"] == {"lag": "s"}
+
+
+def test_a_stated_time_constant_is_part_of_the_simulated_reading():
+    # a sensor stating τ = 60 ms (the stir's 50 ms ramp is faster): the fit applies it and recovers η with the
+    # noise as its residual; the same readings read as if τ were unstated leave the lag's structured residual
+    lagged = synthetic_recording(Newtonian(eta=TRUE_ETA), time_constant=0.06)
+    problem = StirProblem(lagged, FAST, 1000.0)
+    unstated = replace(lagged, sensor=replace(lagged.sensor, time_constant=None))
+    with torch.no_grad():
+        law = Newtonian(eta=TRUE_ETA)
+        stated_reading = problem.simulate(law).numpy()
+        bare_reading = StirProblem(unstated, FAST, 1000.0).simulate(law).numpy()
+    # the same response, in the simulation's float32 against float64: round-off of a few float32 epsilons
+    assert np.abs(stated_reading - lag_response(bare_reading, problem.times, 0.06)).max() \
+        < 1e-6 * np.abs(bare_reading).max()
+    measured = problem.measured
+    assert np.std(measured - stated_reading) == pytest.approx(NOISE, rel=0.3)
+    assert np.std(measured - bare_reading) > 1.5 * NOISE
+    result = identify(lagged, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
+                      holdout_fraction=0.0, max_iterations=3, progress=False)
+    unc = result.uncertainty["newtonian"]
+    assert unc.ci95["eta"][0] < TRUE_ETA < unc.ci95["eta"][1]
+    assert unc.residual_std == pytest.approx(NOISE, rel=0.3)
 
 
 def test_newtonian_fit_stops_at_the_simulators_viscosity_cap(newtonian_recording):
@@ -302,6 +345,7 @@ def test_report_files(newtonian_identification):
     report = json.loads(paths["json"].read_text())
     assert report["selected"] in report["laws"]
     assert set(report["laws"]["newtonian"]) >= {"params", "ci95", "loss", "identifiable"}
+    assert report["simulation"]["force_error"] == MODEL_FORCE_ERROR
     assert set(report["apparent_viscosity"]) >= {"zero_shear", "effective_shear_rate", "at_effective_shear_rate",
                                                  "refined"}
     assert report["density"]["value"] == 1000.0
@@ -379,3 +423,26 @@ def test_broyden_ignores_steps_below_the_parameter_resolution():
     broyden(np.array([0.3]))
     # a step that rounds away in float32 leaves the readings unchanged; the secant would say the Jacobian is 0
     np.testing.assert_allclose(broyden(np.array([0.3 + 1e-9])), a)
+
+
+def test_broyden_ignores_steps_too_short_to_rise_above_the_simulations_round_off():
+    # readings with round-off of 5e-4 of themselves, as the float32 simulation's: a secant over a step of 6e-4 in
+    # ln η would be off by up to its own size, so the first-step Jacobian stays; a step of 2 % updates it
+    slope, noise = 0.9, 5e-4
+    rng = np.random.default_rng(4)
+
+    class Noisy:
+        def __call__(self, theta):
+            return np.exp(slope * theta) * (1.0 + noise * rng.standard_normal(2))
+
+        def jacobian(self, theta):
+            return slope * np.exp(slope * theta)[:, None] * np.ones((2, 1))
+
+    broyden = _BroydenJacobian(Noisy(), min_step=SECANT_FRACTION * FD_STEP["log"])
+    first = broyden(np.array([1.0])).copy()
+    assert np.array_equal(broyden(np.array([1.0006])), first)
+    updated = broyden(np.array([1.0206]))
+    assert not np.array_equal(updated, first)
+    # the secant from θ = 1 (the short step did not move the base point) over 2.06 %: the slope at the middle,
+    # within 4 standard deviations of the noise's sqrt(2) 5e-4 / (0.9 · 0.0206) = 3.8 %
+    np.testing.assert_allclose(updated[:, 0] / np.exp(slope * 1.0103), slope, rtol=4 * 0.038)

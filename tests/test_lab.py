@@ -121,8 +121,13 @@ def test_sensor_gain_offset_drift_and_sampling():
     y = sensor.read(times, force, np.zeros_like(force), sample, np.random.default_rng(0))
     np.testing.assert_allclose(y, 1.1 * 0.3 + 0.02 + 0.01 * sample, rtol=1e-12)
     assert sensor.spec().resolution is None and sensor.spec().axis == (1.0, 0.0)
+    assert sensor.spec().time_constant is None  # nothing stated unless a calibration says so
+    # what the recording states is kept apart from what the sensor does: a concealed lag stays concealed
+    assert SensorModel(lag_time=0.1, stated_time_constant=0.02).spec().time_constant == 0.02
     with pytest.raises(ValueError, match="sensor.lag_time"):
         SensorModel(lag_time=-1.0)
+    with pytest.raises(ValueError, match="sensor.stated_time_constant .* in s"):
+        SensorModel(stated_time_constant=-0.02)
 
 
 def test_programme_speeds_pauses_and_reversal():

@@ -37,7 +37,7 @@ def load_quietly(path):
 
 
 SENSORS = [
-    SensorSpec("component", axis=(0.6, 0.8), resolution=0.005, sample_rate=200.0),
+    SensorSpec("component", axis=(0.6, 0.8), resolution=0.005, sample_rate=200.0, time_constant=0.02),
     SensorSpec("tangential"),
     SensorSpec("magnitude", one_sided=True, resolution=0.01),
 ]

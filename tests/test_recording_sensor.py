@@ -9,9 +9,10 @@ import pytest
 import torch
 
 from diffstir.recording import (
-    CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, resample_force, sensor_reading,
-    sensor_reading_np, simulated_reading, trajectory_at,
+    CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, first_order_response, resample_force,
+    sensor_reading, sensor_reading_np, simulated_reading, trajectory_at,
 )
+from diffstir.recording import sensor as sensor_module
 from diffstir.recording.sensor import FORCE_EPS, VELOCITY_EPS
 
 F = torch.tensor([[3.0, 4.0], [-2.0, 0.0], [1.0, 1.0], [0.0, -0.5]], dtype=torch.float64)
@@ -152,3 +153,61 @@ def test_simulated_drag_reads_as_the_drag_force():
     # exact c |v| = 0.1885 N; linear resampling of a 1 Hz signal at 1 ms errs by (2 pi 1e-3)² / 8 = 5e-6 relative,
     # and central differences at 5 ms shorten |v| by (2 pi 5e-3)² / 6 = 1.6e-4 relative
     np.testing.assert_allclose(reading.numpy(), c * 2 * math.pi * 0.015, rtol=2e-4)
+
+
+@pytest.mark.parametrize("block", [7, 256])
+def test_first_order_response_is_exact_for_a_ramp_on_uneven_samples(monkeypatch, block):
+    # τ dy/dt = t − y, y(0) = 0: y = t − τ (1 − exp(−t/τ)); exact for input linear between samples, whatever
+    # their spacing and however the samples fall into blocks
+    monkeypatch.setattr(sensor_module, "RESPONSE_BLOCK", block)
+    rng = np.random.default_rng(1)
+    times = np.sort(np.concatenate([[0.0], rng.uniform(0.0, 1.0, 600)]))
+    tau = 0.05
+    exact = times - tau * (1.0 - np.exp(-times / tau))
+    ramp = torch.tensor(times)
+    assert np.abs(first_order_response(ramp, times, tau).numpy() - exact).max() < 1e-12
+    columns = torch.stack([ramp, 2.0 * ramp], dim=1)  # (M, k) responds column by column
+    assert np.abs(first_order_response(columns, times, tau).numpy()[:, 1] - 2.0 * exact).max() < 1e-12
+    assert first_order_response(ramp, times, None) is ramp and first_order_response(ramp, times, 0.0) is ramp
+
+
+def test_first_order_response_backpropagates_across_blocks(monkeypatch):
+    monkeypatch.setattr(sensor_module, "RESPONSE_BLOCK", 5)
+    times = np.cumsum(np.random.default_rng(2).uniform(0.005, 0.015, 23))
+    x = torch.randn(23, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda v: first_order_response(v, times, 0.03), (x,))
+
+
+def test_first_order_response_refuses_times_that_do_not_fit():
+    with pytest.raises(RecordingError, match="strictly increasing time"):
+        first_order_response(torch.zeros(3), [0.0, 0.1, 0.1], 0.02)
+    with pytest.raises(RecordingError, match="one strictly increasing time"):
+        first_order_response(torch.zeros(3), [0.0, 0.1], 0.02)
+
+
+def test_a_stated_time_constant_delays_the_simulated_reading():
+    """A drag that steps on at t = 0.2 s through a sensor stating τ = 30 ms reads c v (1 − exp(−(t − 0.2)/τ))."""
+    t = np.arange(0.0, 0.6 + 1e-9, 0.005)
+    spec = SensorSpec("component", axis=(1.0, 0.0), time_constant=0.03)
+    rec = Recording(cup=CupGeometry(0.0425, fill_height=0.13), rod=RodGeometry(0.0125, 0.08), sensor=spec,
+                    density=None, t=t, x=np.zeros_like(t), y=np.zeros_like(t), force=np.zeros_like(t))
+    sim_t = np.arange(0.0, 0.6 + 1e-9, 1e-3)
+    step = np.where(sim_t >= 0.2, 0.1, 0.0)  # N, switched on between 0.199 and 0.2 s
+    reading = simulated_reading(rec, sim_t, torch.tensor(np.stack([step, np.zeros_like(step)], -1))).numpy()
+    after = t >= 0.2 + 0.005
+    # the reading's samples see a ramp from 0.195 to 0.2 s instead of the step, so the response lies between the
+    # step responses starting at 0.195 and at 0.2 s
+    lo = 0.1 * (1.0 - np.exp(-(t[after] - 0.2) / 0.03))
+    hi = 0.1 * (1.0 - np.exp(-(t[after] - 0.195) / 0.03))
+    assert np.all(reading[after] >= lo - 1e-12) and np.all(reading[after] <= hi + 1e-12)
+    assert np.all(reading[t < 0.195] == 0.0)
+
+
+def test_first_order_response_to_a_sinusoid_has_the_first_order_gain_and_phase():
+    omega, tau = 2 * math.pi * 1.5, 0.03  # rad/s, s
+    times = np.linspace(0.0, 4.0, 4001)
+    y = first_order_response(torch.tensor(np.sin(omega * times)), times, tau).numpy()
+    steady = times > 10 * tau  # the start's transient decays as exp(−t/τ)
+    expected = np.sin(omega * times - math.atan(omega * tau)) / math.hypot(1.0, omega * tau)
+    # the sinusoid is linear between samples only to O((ω h)²/8) = 1e-5
+    assert np.abs(y[steady] - expected[steady]).max() < 1e-4

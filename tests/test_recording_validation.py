@@ -134,6 +134,8 @@ def test_immersion_depth_reaching_the_bottom(tmp_path):
     ({"mode": "component", "axis": [1.0]}, ["'sensor.axis' = [1.0]", "two numbers"]),
     ({"mode": "tangential", "one_sided": "yes"}, ["'sensor.one_sided' = 'yes'", "true or false"]),
     ({"mode": "tangential", "resolution": -0.005}, ["'sensor.resolution' = -0.005", "N"]),
+    ({"mode": "tangential", "time_constant": -0.02}, ["'sensor.time_constant' = -0.02", "response time", "in s"]),
+    ({"mode": "tangential", "time_constant": "20 ms"}, ["'sensor.time_constant'", "20 ms", "s"]),
 ])
 def test_bad_sensor(tmp_path, sensor, fragments):
     path = edit_yaml(write(tmp_path, stir()), lambda m: m.update(sensor=sensor))

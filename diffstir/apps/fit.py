@@ -39,7 +39,7 @@ def main(cfg: DictConfig) -> None:
         optimizer=cfg.fit.optimizer, selection=cfg.fit.selection, checkpoint=out / "checkpoint.json",
         progress=cfg.progress, log_dir=out / "tensorboard",
         coarse=instantiate(cfg.coarse) if cfg.get("coarse") else None, fine_iterations=cfg.fit.fine_iterations,
-        sensor_nuisance=tuple(cfg.fit.sensor_nuisance),
+        sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
     )
     if cfg.rectifier.checkpoint:
         result.refined = refined_viscosity(result, str(cfg.rectifier.checkpoint))

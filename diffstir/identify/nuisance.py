@@ -24,9 +24,9 @@ offset absorbs model error even more readily: on the lab's ketchup it took −29
 and the Newtonian law won with a viscosity 20 % high. The dry-run subtraction bounds a real offset by about the
 resolution.
 
-L_τ is exact for p linear between samples (first-order hold), on any increasing sample times t_k:
-
-    y_k = a y_{k−1} + p_k − a p_{k−1} − (p_k − p_{k−1}) (τ/h)(1 − a),   a = exp(−h/τ),   h = t_k − t_{k−1}.
+L_τ is the sensor's response of ``recording.first_order_response``, exact for p linear between samples
+(first-order hold) on any increasing sample times. A recording whose sensor block states a ``time_constant``
+already has that response in p (``StirProblem.simulate``); a fitted lag is then the sensor's response beyond it.
 """
 
 from __future__ import annotations
@@ -35,7 +35,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 from scipy import optimize
+
+from ..recording.sensor import first_order_response
 
 NUISANCES = ("offset", "lag")
 
@@ -55,20 +58,10 @@ LAG_STEP = 1e-4
 
 
 def lag_response(x: np.ndarray, times: np.ndarray, tau: float) -> np.ndarray:
-    """L_τ x: the first-order response τ dy/dt = x − y to ``x`` [any unit] (M,) or (M, k), linear between the
-    sample ``times`` [s] (M,), y_0 = x_0 (module docstring). τ = 0 returns x."""
+    """L_τ x [unit of x], (M,) or (M, k), at the sample ``times`` [s]: ``recording.first_order_response`` in
+    float64 numpy (module docstring). τ = 0 returns x."""
     x = np.asarray(x, dtype=np.float64)
-    if tau <= 0.0 or x.shape[0] < 2:
-        return x.copy()
-    h = np.diff(np.asarray(times, dtype=np.float64))
-    a = np.exp(-h / tau)
-    b = (tau / h) * (1.0 - a)
-    a, b = a.reshape(-1, *([1] * (x.ndim - 1))), b.reshape(-1, *([1] * (x.ndim - 1)))
-    y = np.empty_like(x)
-    y[0] = x[0]
-    for k in range(1, x.shape[0]):
-        y[k] = a[k - 1] * y[k - 1] + x[k] - a[k - 1] * x[k - 1] - (x[k] - x[k - 1]) * b[k - 1]
-    return y
+    return first_order_response(torch.from_numpy(x), times, tau).numpy().copy()
 
 
 @dataclass(frozen=True)

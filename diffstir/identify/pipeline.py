@@ -32,7 +32,7 @@ from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
 from .optimise import FitResult, fit_model, noise_scale
 from .problem import StirProblem, Windows
 from .selection import bic, select
-from .uncertainty import Uncertainty, laplace, log_viscosity_interval
+from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, laplace, log_viscosity_interval
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
@@ -57,6 +57,7 @@ class Identification:
     resolvable: dict
     seconds: float
     preliminary: dict
+    model_error: float = 0.0
     refined: dict | None = None
 
     @property
@@ -104,7 +105,7 @@ class Identification:
                         "end": self.problem.windows.end, "unit": "s"},
             "shear_rate_range": list(self.probed_shear_rates()),
             "simulation": {"dim": self.problem.config.dim, "dx": self.problem.config.dx,
-                           "sound_speed": self.problem.config.sound_speed},
+                           "sound_speed": self.problem.config.sound_speed, "force_error": self.model_error},
             "seconds": self.seconds,
         }
 
@@ -131,7 +132,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              max_iterations: int = 6, optimizer: str = "lm", selection: str = "bic",
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
              coarse: SimConfig | None = None, fine_iterations: int = 3,
-             sensor_nuisance=DEFAULT_NUISANCES) -> Identification:
+             sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -152,7 +153,11 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
         sensor_nuisance: sensor parameters profiled out of every fit (``nuisance``: "lag", "offset"; () for
             none).
+        model_error: the relative 1-σ error σ_m of ``config``'s simulated force, added to every interval
+            (``uncertainty``; 0: the intervals hold the noise only).
     """
+    if not (math.isfinite(model_error) and 0.0 <= model_error < 1.0):
+        raise ValueError(f"fit.model_error = {model_error!r}; expected a relative force error in [0, 1)")
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)
@@ -263,7 +268,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     residuals = {name: (fit.predicted - problem.measured)[train] for name, fit in fits.items()}
     uncertainty = {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
                                                                         problem.times, fit.sensor, train),
-                                 residuals[name])
+                                 residuals[name], fit.simulated_readings[train], model_error)
                    for name, fit in fits.items()}
     # one sample count for every model, or BIC would compare likelihoods of different data: that of the
     # best-fitting model, whose residuals are the closest to the noise
@@ -276,7 +281,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     chosen["bic"] = bics
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
-                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]),
+                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem))
 
 

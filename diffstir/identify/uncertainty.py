@@ -1,9 +1,16 @@
-"""Uncertainty of a fit: the Laplace (Gauss-Newton) covariance of θ, corrected for correlated residuals.
+"""Uncertainty of a fit: the Laplace (Gauss-Newton) covariance of θ, corrected for correlated residuals, plus the
+simulator's own error.
 
-cov(θ) = s² (JᵀJ)⁻¹ · N / N_eff, with J = d readings / d θ on the fitted samples, s² = RSS / (N - k), and
-N_eff = N (1 - ρ) / (1 + ρ) the effective number of independent samples for residuals with lag-1
-autocorrelation ρ (an AR(1) model: sensor lag, filtering and model error make neighbouring residuals alike, and
-treating them as independent would make the intervals far too narrow). A parameter is identifiable when its
+cov(θ) = s² (JᵀJ)⁻¹ · N / N_eff + σ_m² g gᵀ,   g = J⁺ p,
+
+with J = d readings / d θ on the fitted samples, s² = RSS / (N - k), N_eff = N (1 - ρ) / (1 + ρ) the effective
+number of independent samples for residuals with lag-1 autocorrelation ρ (an AR(1) model: sensor lag, filtering and
+model error make neighbouring residuals alike, and treating them as independent would make the intervals far too
+narrow). The second term is the fitting simulator's discretisation error, taken as a common relative error ε of
+its force, ε ~ N(0, σ_m²): a reading p(1 + ε) moves the least-squares θ by ε J⁺ p. It does not shrink with more
+data and no residual shows it, because θ absorbs it (a grid that reads 3 % low returns a viscosity that much
+high); σ_m comes from the simulator's validation against closed forms (``MODEL_FORCE_ERROR``). A parameter is
+identifiable when its
 95 % interval is narrower than a factor ``MAX_FACTOR`` each way (log-scaled) or ``MAX_LINEAR_HALF_WIDTH``
 (dimensionless indices) and it did not end on a bound.
 """
@@ -21,6 +28,10 @@ Z95 = 1.959963984540054
 MAX_FACTOR = 3.0            # a log-scaled parameter known to within a factor 3 either way
 MAX_LINEAR_HALF_WIDTH = 0.5  # a dimensionless index known to within ±0.5
 AT_BOUND = 1e-3              # of the θ range: closer than this to a bound counts as on it
+
+#: σ_m, the relative 1-σ error of the default fitting grid's force (the 2-D slice, dx = 2.5 mm): the rms of its
+#: closed-form checks, the Newtonian Couette torque −3.2 % and the power-law one +2.8 % (docs/validation.md).
+MODEL_FORCE_ERROR = 0.03
 
 
 @dataclass
@@ -56,15 +67,20 @@ def effective_samples(residuals: np.ndarray) -> float:
     return max(len(r) * (1.0 - rho) / (1.0 + rho), 2.0)
 
 
-def laplace(model: FitModel, theta: np.ndarray, jacobian: np.ndarray, residuals: np.ndarray) -> Uncertainty:
-    """The Gauss-Newton covariance at ``theta`` from the fitted samples' ``jacobian`` (N, k) and ``residuals``
-    (N,) [N], with 95 % intervals, identifiability and bound flags."""
+def laplace(model: FitModel, theta: np.ndarray, jacobian: np.ndarray, residuals: np.ndarray,
+            readings: np.ndarray | None = None, model_error: float = 0.0) -> Uncertainty:
+    """The covariance at ``theta`` from the fitted samples' ``jacobian`` (N, k) and ``residuals`` (N,) [N], with
+    the simulator's relative force error ``model_error`` σ_m acting on its ``readings`` p (N,) [N] (module
+    docstring), and 95 % intervals, identifiability and bound flags."""
     n, k = jacobian.shape
     n_eff = min(effective_samples(residuals), float(n))
     s2 = float(residuals @ residuals) / max(n - k, 1)
-    _, singular, vt = np.linalg.svd(jacobian, full_matrices=False)
+    u, singular, vt = np.linalg.svd(jacobian, full_matrices=False)
     seen = singular > singular.max(initial=0.0) * 1e-8 if singular.size else np.zeros(0, bool)
     covariance = (vt[seen].T / singular[seen] ** 2) @ vt[seen] * s2 * n / n_eff
+    if model_error > 0.0 and readings is not None:
+        shift = vt[seen].T @ ((u[:, seen].T @ readings) / singular[seen])  # J⁺ p: dθ per unit relative error
+        covariance = covariance + model_error**2 * np.outer(shift, shift)
     blind = np.any(np.abs(vt[~seen]) > 1e-6, axis=0) if (~seen).any() else np.zeros(k, bool)
     covariance[blind, :] = np.inf
     covariance[:, blind] = np.inf

@@ -75,6 +75,8 @@ class SensorModel:
         gain_error: g [1], relative calibration error (also scales the density block's readings).
         offset: b0 [N], baseline offset left after the dry-run subtraction (cancels in the density's G − R).
         density_hold: [s], how long each static density reading is averaged (its noise is σ / sqrt(f_s hold)).
+        stated_time_constant: [s], the response time the recording's sensor block states (what a calibration of
+            this sensor found; None: not stated). It can differ from ``lag_time``, which is what the sensor does.
     """
 
     mode: str = "tangential"
@@ -90,6 +92,7 @@ class SensorModel:
     gain_error: float = 0.0
     offset: float = 0.0
     density_hold: float = 2.0
+    stated_time_constant: float | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in SENSOR_MODES:
@@ -110,13 +113,18 @@ class SensorModel:
         for name, unit in (("drift_rate", "N/s"), ("offset", "N")):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"sensor.{name} = {getattr(self, name)!r}; expected a finite number in {unit}")
+        stated = self.stated_time_constant
+        if stated is not None and not (isinstance(stated, (int, float)) and math.isfinite(stated) and stated >= 0):
+            raise ValueError(f"sensor.stated_time_constant = {stated!r}; expected null or a number >= 0 in s")
         if not (math.isfinite(self.gain_error) and self.gain_error > -1):
             raise ValueError(f"sensor.gain_error = {self.gain_error!r}; expected a relative error > -1 (1)")
 
     def spec(self) -> SensorSpec:
-        """The recording's ``sensor`` block: mode, axis, one_sided, resolution [N] (None if 0), sample_rate [Hz]."""
+        """The recording's ``sensor`` block: mode, axis, one_sided, resolution [N] (None if 0), sample_rate [Hz],
+        time_constant [s] (the stated one)."""
         return SensorSpec(mode=self.mode, axis=self.axis if self.mode == "component" else None,
-                          one_sided=self.one_sided, resolution=self.resolution or None, sample_rate=self.sample_rate)
+                          one_sided=self.one_sided, resolution=self.resolution or None, sample_rate=self.sample_rate,
+                          time_constant=self.stated_time_constant)
 
     def as_dict(self) -> dict:
         """Every setting, SI, for the truth file."""

@@ -17,6 +17,7 @@ from diffstir.recording.validate import validate_recording
 from diffstir.recording.writer import RecordingWriter
 
 _TORCH_MODULES = {
+    "first_order_response": "diffstir.recording.sensor",
     "resample_force": "diffstir.recording.resample",
     "trajectory_at": "diffstir.recording.resample",
     "sensor_reading": "diffstir.recording.sensor",
@@ -41,6 +42,7 @@ __all__ = [
     "RecordingWriter",
     "RodGeometry",
     "SensorSpec",
+    "first_order_response",
     "load_recording",
     "resample_force",
     "save_recording",

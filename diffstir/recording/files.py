@@ -28,7 +28,7 @@ _KNOWN_FIELDS = {
     ("rig",): {"cup", "rod"},
     ("rig", "cup"): {"radius", "fill_height", "fill_volume"},
     ("rig", "rod"): {"radius", "immersion_depth"},
-    ("sensor",): {"mode", "axis", "one_sided", "resolution", "sample_rate"},
+    ("sensor",): {"mode", "axis", "one_sided", "resolution", "sample_rate", "time_constant"},
     ("density",): {"rod_weight", "immersed_reading", "immersed_depth", "rod_cross_section"},
 }
 
@@ -152,6 +152,7 @@ def parse_metadata(meta: object, where: str) -> dict:
         mode=str(sensor_d["mode"]), axis=axis, one_sided=one_sided,
         resolution=_get(sensor_d, ("sensor",), "resolution", where, "N", required=False),
         sample_rate=_get(sensor_d, ("sensor",), "sample_rate", where, "Hz", required=False),
+        time_constant=_get(sensor_d, ("sensor",), "time_constant", where, "s", required=False),
     )
 
     density = None
@@ -202,7 +203,8 @@ def metadata_dict(*, cup: CupGeometry, rod: RodGeometry, sensor: SensorSpec, den
     if sensor.axis is not None:
         meta["sensor"]["axis"] = [float(a) for a in sensor.axis]
     meta["sensor"]["one_sided"] = bool(sensor.one_sided)
-    meta["sensor"].update(numbers(resolution=sensor.resolution, sample_rate=sensor.sample_rate))
+    meta["sensor"].update(numbers(resolution=sensor.resolution, sample_rate=sensor.sample_rate,
+                                  time_constant=sensor.time_constant))
     if density is not None:
         meta["density"] = numbers(
             rod_weight=density.rod_weight, immersed_reading=density.immersed_reading,

@@ -55,13 +55,15 @@ class RodGeometry:
 class SensorSpec:
     """What the ``force`` column means: ``mode`` (component: F·axis, tangential: F·(-v/|v|), magnitude: |F|),
     ``axis`` (horizontal unit vector, cup frame, component mode only), ``one_sided`` (column holds max(0, value)),
-    ``resolution`` [N] and nominal ``sample_rate`` [Hz]."""
+    ``resolution`` [N], nominal ``sample_rate`` [Hz], and ``time_constant`` [s], the sensor's first-order
+    response time τ as calibrated (τ dy/dt = x − y; None: not stated, taken as instantaneous)."""
 
     mode: Literal["component", "tangential", "magnitude"]
     axis: tuple[float, float] | None = None
     one_sided: bool = False
     resolution: float | None = None
     sample_rate: float | None = None
+    time_constant: float | None = None
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,9 @@ The readings are smooth so that a fitter can backpropagate through them:
   differs from F · (-v/|v|) by a relative (VELOCITY_EPS/|v|)²/2, i.e. 5e-7 at 0.1 m/s
 * magnitude:  sqrt(|F|² + FORCE_EPS²) - FORCE_EPS: |F| within FORCE_EPS, 0 at F = 0, gradient finite there
 * one_sided:  relu(value)
+
+and, when the spec states a ``time_constant`` τ, through the sensor's first-order response τ dy/dt = x − y
+(``first_order_response``), applied to the reading at the recording's sample times.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from diffstir.recording.errors import RecordingError
 from diffstir.recording.format import SENSOR_MODES, Recording, SensorSpec
 from diffstir.recording.resample import resample_force
 
+RESPONSE_BLOCK = 256  # samples per block of first_order_response's exact scan
 VELOCITY_EPS = 1e-4  # m/s: the rod speed below which the tangential direction fades out smoothly
 FORCE_EPS = 1e-6  # N: smoothing of |F|, far below any sensor's resolution (0.005 N in the paper)
 
@@ -51,6 +55,41 @@ def sensor_reading(force_xy: torch.Tensor, velocity_xy: torch.Tensor | None, spe
     return torch.relu(value) if spec.one_sided else value
 
 
+def first_order_response(x: torch.Tensor, times, time_constant: float | None) -> torch.Tensor:
+    """y with τ dy/dt = x − y, y(t_0) = x(t_0), for ``x`` [any unit] (M,) or (M, k) linear between the
+    increasing sample ``times`` [s] (M,) (first-order hold); ``time_constant`` τ [s], None or 0: y = x.
+
+        y_k = Σ_{j ≤ k} exp(−(t_k − t_j)/τ) c_j,  c_0 = x_0,
+        c_j = x_j − a_j x_{j−1} − (x_j − x_{j−1}) (τ/h_j)(1 − a_j),  a_j = exp(−h_j/τ),  h_j = t_j − t_{j−1},
+
+    which is the exact recurrence y_k = a_k y_{k−1} + c_k, evaluated in blocks of ``RESPONSE_BLOCK`` samples
+    (a matrix product within a block, the state carried between blocks). Differentiable in ``x``.
+    """
+    if not time_constant or x.shape[0] < 2:
+        return x
+    t = torch.as_tensor(np.asarray(times, dtype=np.float64))
+    if t.shape[0] != x.shape[0] or not bool(torch.all(torch.diff(t) > 0)):
+        raise RecordingError(f"first_order_response: times has shape {tuple(t.shape)}, x {tuple(x.shape)}; "
+                             "expected one strictly increasing time (s) per sample")
+    h = torch.diff(t)
+    a = torch.exp(-h / time_constant)
+    b = (time_constant / h) * (1.0 - a)
+    shape = (-1,) + (1,) * (x.ndim - 1)
+    a_x, b_x = (v.to(x.dtype).to(x.device).reshape(shape) for v in (a, b))
+    c = torch.cat([x[:1], x[1:] - a_x * x[:-1] - (x[1:] - x[:-1]) * b_x])
+    blocks, state = [], None
+    for start in range(0, x.shape[0], RESPONSE_BLOCK):
+        tb = t[start:start + RESPONSE_BLOCK]
+        decay = torch.tril(torch.exp(-(tb[:, None] - tb[None, :]).clamp(min=0.0) / time_constant))
+        y = decay.to(x.dtype).to(x.device) @ c[start:start + RESPONSE_BLOCK]
+        if state is not None:
+            carry = torch.exp(-(tb - t[start - 1]) / time_constant).to(x.dtype).to(x.device).reshape(shape)
+            y = y + carry * state
+        blocks.append(y)
+        state = y[-1]
+    return torch.cat(blocks)
+
+
 def sensor_reading_np(force_xy, velocity_xy, spec: SensorSpec) -> np.ndarray:
     """sensor_reading on numpy arrays, in float64."""
     force = torch.as_tensor(np.asarray(force_xy, dtype=np.float64))
@@ -61,7 +100,8 @@ def sensor_reading_np(force_xy, velocity_xy, spec: SensorSpec) -> np.ndarray:
 def simulated_reading(rec: Recording, sim_times, sim_force_xy: torch.Tensor) -> torch.Tensor:
     """What ``rec``'s sensor would have read [N], shape (T,), at the recording's times, had the fluid pushed the
     rod with the simulated horizontal force ``sim_force_xy`` [N] (S, 2) at ``sim_times`` [s] (S,):
-    resample_force to rec.t, then sensor_reading with rec.velocity(). Compare it with ``rec.force``."""
+    resample_force to rec.t, sensor_reading with rec.velocity(), then the sensor's stated first-order response.
+    Compare it with ``rec.force``."""
     force = resample_force(sim_times, sim_force_xy, rec.t)
     velocity = torch.as_tensor(rec.velocity(), dtype=force.dtype, device=force.device)
-    return sensor_reading(force, velocity, rec.sensor)
+    return first_order_response(sensor_reading(force, velocity, rec.sensor), rec.t, rec.sensor.time_constant)

@@ -104,6 +104,9 @@ def check_metadata(cup: CupGeometry, rod: RodGeometry, sensor: SensorSpec, densi
     for field, value, unit in (("resolution", sensor.resolution, "N"), ("sample_rate", sensor.sample_rate, "Hz")):
         if value is not None and not (math.isfinite(value) and value > 0):
             errors.append(f"{where}: field 'sensor.{field}' = {value!r}; expected a positive number in {unit}")
+    tau = sensor.time_constant
+    if tau is not None and not (math.isfinite(tau) and tau >= 0):
+        errors.append(f"{where}: field 'sensor.time_constant' = {tau!r}; expected a response time >= 0 in s")
 
     if density is not None:
         for field, value in (("rod_weight", density.rod_weight), ("immersed_reading", density.immersed_reading)):
