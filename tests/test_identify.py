@@ -215,6 +215,13 @@ def test_bic_charges_parameters():
     chosen = select({"a": 1.0, "b": 0.99}, {"a": bic(r, 1, 100), "b": bic(0.999 * r, 4, 100)},
                     {"a": None, "b": None}, "bic")
     assert chosen["selected"] == "a" and chosen["lowest_loss"] == "b"
+    # the margin: 3 ln 100 for three parameters, less the 0.2 % of RSS that b gains, N ln(0.999²) = -0.2
+    margin = chosen["bic_margin"]
+    assert (margin["best"], margin["runner_up"]) == ("a", "b")
+    assert margin["delta_bic"] == pytest.approx(3 * math.log(100) + 100 * math.log(0.999**2))
+    assert margin["evidence"] == "very strong"  # 13.6 > 10 on Kass and Raftery's scale
+    weak = select({"a": 1.0, "b": 0.99}, {"a": -10.0, "b": -11.5, "c": math.nan}, {"a": None, "b": None})
+    assert weak["bic_margin"] == {"best": "b", "runner_up": "a", "delta_bic": 1.5, "evidence": "weak"}
 
 
 def test_effective_shear_rate_is_where_a_thinning_fluid_reads_like_its_newtonian_equivalent():
@@ -351,7 +358,7 @@ def test_report_files(newtonian_identification):
     assert report["density"]["value"] == 1000.0
     assert report["laws"]["newtonian"]["sensor"] == {"units": {}}  # no sensor nuisances by default
     assert report["family"]["class"] == "newtonian"  # a Newtonian fluid is Newtonian over any band
-    assert "newtonian" in paths["md"].read_text()
+    assert "newtonian" in paths["md"].read_text() and "BIC margin of" in paths["md"].read_text()
     assert all(paths[k].stat().st_size > 0 for k in ("forces", "flow_curves", "losses"))
     assert any((out / "tb").iterdir())
 

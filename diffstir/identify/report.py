@@ -28,7 +28,7 @@ def markdown(summary: dict) -> str:
     lines = [f"# Identification of {summary['recording']}", "",
              f"- density: {d['value']:.1f} kg/m³{ci}, from {d['source']}",
              f"- selected law: **{sel}** by {summary['selection']['criterion']}; lowest paper loss: "
-             f"{summary['selection']['lowest_loss']}",
+             f"{summary['selection']['lowest_loss']}{_margin(summary['selection'].get('bic_margin'))}",
              f"- effective shear rate of the stir: {av['effective_shear_rate']:.3g} 1/s; probed band "
              f"{summary['shear_rate_range'][0]:.3g}-{summary['shear_rate_range'][1]:.3g} 1/s",
              f"- apparent viscosity at the effective shear rate: {av['at_effective_shear_rate']:.4g} Pa·s "
@@ -117,3 +117,11 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     ax.legend(fontsize=7)
     paths["losses"] = save_figure(fig, out / "losses.png")
     return paths
+
+
+def _margin(margin: dict | None) -> str:
+    """The BIC margin of the best law over the runner-up, as a clause of the selection line."""
+    if margin is None:
+        return ""
+    return (f"; BIC margin of {margin['best']} over {margin['runner_up']}: {margin['delta_bic']:.1f} "
+            f"({margin['evidence']} evidence)")

@@ -5,6 +5,10 @@
 * ``bic``: the Bayesian information criterion of a Gaussian residual model with N_eff effective samples,
   BIC = N_eff ln(RSS/N) + k ln N_eff, which charges each parameter ln N_eff.
 * ``holdout``: the lowest paper loss on the held-out samples, which the fit never saw.
+
+Whatever the criterion, the report gives the BIC margin of the best law over the runner-up and its strength on
+Kass and Raftery's (1995) scale of 2 ln B ≈ ΔBIC: under 2 not worth more than a bare mention, 2-6 positive, 6-10
+strong, over 10 very strong. A margin under 2 means the recording does not tell the two laws apart.
 """
 
 from __future__ import annotations
@@ -14,6 +18,9 @@ import math
 import numpy as np
 
 CRITERIA = ("bic", "holdout", "loss")
+
+#: Kass and Raftery's scale: the weakest ΔBIC of each grade of evidence.
+EVIDENCE = ((10.0, "very strong"), (6.0, "strong"), (2.0, "positive"), (0.0, "weak"))
 
 
 def bic(residuals: np.ndarray, n_params: int, n_effective: float) -> float:
@@ -42,4 +49,15 @@ def select(losses: dict[str, float], bics: dict[str, float], holdout: dict[str, 
     elif criterion == "holdout":
         raise ValueError("fit.selection = 'holdout' needs held-out samples; set fit.holdout_fraction > 0")
     return {"criterion": criterion, "selected": rankings[criterion][0], "lowest_loss": rankings["loss"][0],
-            "rankings": rankings}
+            "rankings": rankings, "bic_margin": bic_margin(bics)}
+
+
+def bic_margin(bics: dict[str, float]) -> dict | None:
+    """ΔBIC of the best law by BIC over the runner-up, and its grade of evidence (``EVIDENCE``); None with fewer
+    than two finite BICs."""
+    ordered = [name for name in rank(bics) if math.isfinite(bics[name])]
+    if len(ordered) < 2:
+        return None
+    margin = bics[ordered[1]] - bics[ordered[0]]
+    grade = next(label for bound, label in EVIDENCE if margin >= bound)
+    return {"best": ordered[0], "runner_up": ordered[1], "delta_bic": margin, "evidence": grade}

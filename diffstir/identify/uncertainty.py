@@ -106,7 +106,8 @@ def log_viscosity_interval(model: FitModel, theta: np.ndarray, covariance: np.nd
     ln η ± 1.96 sqrt(g cov gᵀ), g = d ln η / d θ. Returns (η, lower, upper)."""
     eta, grad = model.viscosity(np.atleast_1d(shear_rate), theta)
     half = Z95 * np.sqrt(delta_variance(grad, covariance))
-    return eta, eta * np.exp(-half), eta * np.exp(half)
+    with np.errstate(over="ignore"):  # an unresolved viscosity's band is [0, inf)
+        return eta, eta * np.exp(-half), eta * np.exp(half)
 
 
 def delta_variance(gradients: np.ndarray, covariance: np.ndarray) -> np.ndarray:
