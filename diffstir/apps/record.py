@@ -131,6 +131,8 @@ def _terminate(signum, frame) -> None:
 def main(cfg: DictConfig) -> None:
     """Console entry point ``diffstir-record``."""
     signal.signal(signal.SIGTERM, _terminate)
+    # a shell starting a job in the background hands it SIGINT ignored; a recorder must stop on it all the same
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         session = record(cfg)
     except KeyboardInterrupt:

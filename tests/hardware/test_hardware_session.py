@@ -112,7 +112,16 @@ def test_garbage_and_partial_lines_are_survived(tmp_path, rig, adc_emulator):
     _check_prefix(session, emulator, rec)
 
 
-def test_ctrl_c_mid_stir(tmp_path, rig, adc_emulator):
+@pytest.fixture
+def ctrl_c_raises():
+    """SIGINT raises KeyboardInterrupt for the test, even where the runner was started with it ignored (as a
+    shell starts a background job); the previous handler comes back afterwards."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_mid_stir(tmp_path, rig, adc_emulator, ctrl_c_raises):
     emulator = adc_emulator(sample_rate=RATE, force=TRUE_FORCE)
     timer = threading.Timer(0.6, os.kill, (os.getpid(), signal.SIGINT))
     with SerialADC(emulator.port) as adc, pytest.raises(KeyboardInterrupt):
