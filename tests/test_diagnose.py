@@ -13,7 +13,7 @@ import torch
 
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
 from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
-from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, lag, scaled_law
+from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, scaled_law
 from diffstir.diagnose.compare import DISTINCT, NONE, fit_physics, fit_sensor, rank, reachable_rss
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify import StirProblem, Windows
@@ -64,13 +64,16 @@ def synthetic_context(effect=None, seed=0, **truth):
     return ctx
 
 
-def test_lag_is_the_lab_first_order_lag_and_its_step_response():
+def test_the_lag_candidate_is_the_labs_first_order_lag_and_its_step_response():
     t = np.arange(200) / RATE
     x = np.where(t > 0.5, 1.0, 0.0)
-    np.testing.assert_allclose(lag(x, t, 0.1), first_order_lag(x, 1 / RATE, 0.1), atol=1e-12)
+    lagged = SENSOR_CANDIDATES["sensor_lag"].reading(x, SimpleNamespace(times=t), {"lag_time": 0.1})
+    # the lab holds each sample (zero-order hold), the candidate joins samples by lines (first-order hold): the
+    # same response to a step delayed by half a sample, so they differ by at most (1 − e^(−Δt/2τ)) of the step
+    assert np.abs(lagged - first_order_lag(x, 1 / RATE, 0.1)).max() < 1 - math.exp(-1 / (2 * RATE * 0.1))
     # 63 % of a step after one time constant, to within one sample's worth of the exponential
     k = np.searchsorted(t, 0.6)
-    assert lag(x, t, 0.1)[k] == pytest.approx(1 - math.exp(-1), abs=1 / (RATE * 0.1))
+    assert lagged[k] == pytest.approx(1 - math.exp(-1), abs=1 / (RATE * 0.1))
 
 
 def test_locate_labels_the_programme_and_measures_lag_and_harmonics():
@@ -230,7 +233,9 @@ def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
     assert diag.base.simulations == 2 and diag.fits["viscoelasticity"].simulations > 0
     fit = diag.fits["sensor_lag"]
     lo, hi = fit.ci95["lag_time"]
-    assert lo <= 0.08 <= hi
+    # the recording's lag holds each sample over the interval before it (zero-order hold at the sample rate),
+    # which leads the continuous response by half a sample; the candidate's exact response takes that up in τ
+    assert lo <= 0.08 - 0.5 / RATE <= hi
     assert fit.law["params"]["eta"] == pytest.approx(0.8, rel=0.05)
     paths = write_diagnosis(diag, tmp_path / "out")
     report = json.loads(paths["json"].read_text())

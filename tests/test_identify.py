@@ -16,8 +16,9 @@ from diffstir.identify.selection import bic, select
 from diffstir.identify.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.identify.nuisance import lag_response
-from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec,
-                                first_order_response, sensor_reading_np)
+from diffstir.lab import SensorModel
+from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, sensor_reading_np,
+                                trajectory_at)
 from diffstir.rheology import Carreau, Newtonian
 from diffstir.trajectory import circle
 
@@ -37,9 +38,14 @@ def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST, tim
     with torch.no_grad():
         result = StirringSimulator(law, rig_from_recording(blank), config, density=1000.0)(traj)
     t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
-    force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
-    reading = first_order_response(torch.from_numpy(sensor_reading_np(force, blank.velocity(), sensor)), traj.t,
-                                   time_constant).numpy()
+    if time_constant is None:
+        force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
+        reading = sensor_reading_np(force, blank.velocity(), sensor)
+    else:  # the virtual lab's sensor: it lags the force at every simulation step, then it is sampled
+        lab_sensor = SensorModel(mode="tangential", sample_rate=250, resolution=0.0, lag_time=time_constant)
+        t = t[0] + np.arange(t.size) * np.mean(np.diff(t))  # the steps, uniform but for float32 rounding
+        velocity = trajectory_at(blank, np.clip(t, traj.t[0], traj.t[-1]))[1]
+        reading = lab_sensor.read(t, f[:, :2], velocity, traj.t, np.random.default_rng(seed))
     reading += np.random.default_rng(seed).normal(0.0, noise, reading.shape)
     return Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                      force=reading, name="synthetic")
@@ -296,9 +302,13 @@ def test_a_stated_time_constant_is_part_of_the_simulated_reading():
         law = Newtonian(eta=TRUE_ETA)
         stated_reading = problem.simulate(law).numpy()
         bare_reading = StirProblem(unstated, FAST, 1000.0).simulate(law).numpy()
-    # the same response, in the simulation's float32 against float64: round-off of a few float32 epsilons
-    assert np.abs(stated_reading - lag_response(bare_reading, problem.times, 0.06)).max() \
-        < 1e-6 * np.abs(bare_reading).max()
+    # what the lab's sensor reads, noise-free: it holds the force over each simulation step (zero-order hold)
+    # where the fitter joins steps by lines, a difference of half a 1 ms step in a response of 60 ms: < 1 %
+    lab = synthetic_recording(law, noise=0.0, time_constant=0.06).force[problem.index]
+    gap = np.sqrt(np.mean((stated_reading - lab) ** 2))
+    assert gap < 0.01 * np.sqrt(np.mean(lab**2))
+    # sampled first and lagged after, the reading keeps the step-to-step force noise the sensor smooths out
+    assert np.sqrt(np.mean((lag_response(bare_reading, problem.times, 0.06) - lab) ** 2)) > 2 * gap
     measured = problem.measured
     assert np.std(measured - stated_reading) == pytest.approx(NOISE, rel=0.3)
     assert np.std(measured - bare_reading) > 1.5 * NOISE

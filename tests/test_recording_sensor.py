@@ -13,7 +13,7 @@ from diffstir.recording import (
     sensor_reading, sensor_reading_np, simulated_reading, trajectory_at,
 )
 from diffstir.recording import sensor as sensor_module
-from diffstir.recording.sensor import FORCE_EPS, VELOCITY_EPS
+from diffstir.recording.sensor import FORCE_EPS, VELOCITY_EPS, sensor_history
 
 F = torch.tensor([[3.0, 4.0], [-2.0, 0.0], [1.0, 1.0], [0.0, -0.5]], dtype=torch.float64)
 V = torch.tensor([[0.1, 0.0], [0.2, 0.0], [0.0, -0.05], [0.0, 0.3]], dtype=torch.float64)
@@ -211,3 +211,16 @@ def test_first_order_response_to_a_sinusoid_has_the_first_order_gain_and_phase()
     expected = np.sin(omega * times - math.atan(omega * tau)) / math.hypot(1.0, omega * tau)
     # the sinusoid is linear between samples only to O((ω h)²/8) = 1e-5
     assert np.abs(y[steady] - expected[steady]).max() < 1e-4
+
+
+def test_a_one_sided_sensor_clips_what_its_element_responds_with():
+    # a drag that reverses: the element lags the signed force and the one-sided reading is the clip of that,
+    # so the reading stays positive for a while after the force turns negative (clipping first would not)
+    times = np.arange(0.0, 1.0, 0.001)
+    force = torch.tensor(np.stack([np.where(times < 0.5, 0.1, -0.1), np.zeros_like(times)], -1))
+    spec = SensorSpec("component", axis=(1.0, 0.0), one_sided=True, time_constant=0.05)
+    reading = sensor_history(force, None, times, spec).numpy()
+    # τ dy/dt = x − y from 0.1 towards −0.1: y = −0.1 + 0.2 exp(−(t − 0.5)/τ), positive until 0.5 + τ ln 2
+    crossing = 0.5 + 0.05 * math.log(2.0)
+    assert np.all(reading[(times > 0.5) & (times < crossing - 0.002)] > 0)
+    assert np.all(reading[times > crossing + 0.002] == 0) and np.all(reading >= 0)

@@ -7,7 +7,7 @@ the base law with s alone.
 Sensor candidates act on the base law's simulated reading p(t) (linearised in ln s through the fit's Jacobian,
 p = p0 + J_s ln s) and cost no simulation:
 
-* ``sensor_lag``:       τ dy/dt = p − y (first-order response)                            τ [s]
+* ``sensor_lag``:       τ dy/dt = p − y (first-order response, beyond any the recording states)  τ [s]
 * ``sensor_deadband``:  y = sign(p) max(|p| − d, 0) (readings below d lost)                d [N]
 * ``sensor_drift``:     y = p + b0 + r (t − t0) (slow creep of the offset)                 b0 [N], r [N/s]
 * ``inertia``:          y = p − m a_s(t): the sensor carries the rod and the fluid it drags along, so it also
@@ -39,6 +39,7 @@ from torch import nn
 
 from ..identify.initial import initial_model
 from ..identify.models import FitModel
+from ..identify.nuisance import lag_response
 from ..lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from ..lab.sensor import dead_band
 from ..recording import SensorSpec
@@ -121,17 +122,6 @@ def accel_reading(times: np.ndarray, velocity: np.ndarray, spec: SensorSpec) -> 
     return sensor_reading_np(accel, velocity, SensorSpec(mode=spec.mode, axis=spec.axis))
 
 
-def lag(x: np.ndarray, times: np.ndarray, tau: float) -> np.ndarray:
-    """τ dy/dt = x − y on samples ``x`` at ``times`` [s] (not necessarily uniform), y_0 = x_0:
-    y_k = a_k y_{k−1} + (1 − a_k) x_k, a_k = exp(−(t_k − t_{k−1})/τ)."""
-    a = np.exp(-np.diff(times) / tau)
-    y = np.empty_like(x)
-    y[0] = x[0]
-    for k in range(1, x.size):
-        y[k] = a[k - 1] * y[k - 1] + (1.0 - a[k - 1]) * x[k]
-    return y
-
-
 @dataclass(frozen=True)
 class SensorCandidate:
     """An extension of the sensor model: ``reading(p, ctx, values)`` [N] of the base reading ``p`` [N] with the
@@ -180,7 +170,7 @@ def _scaled(physics: Callable[[RheologyLaw, dict, Context], nn.Module]):
 SENSOR_CANDIDATES = {
     "sensor_lag": SensorCandidate(
         "sensor_lag", (Param("lag_time", "s", "log", 1e-3, 5.0),),
-        lambda p, ctx, v: lag(p, ctx.times, v["lag_time"]),
+        lambda p, ctx, v: lag_response(p, ctx.times, v["lag_time"]),
         lambda ctx: [{"lag_time": tau} for tau in (0.01, 0.05, 0.2, 1.0)],
         "a first-order sensor response"),
     "sensor_deadband": SensorCandidate(

@@ -17,8 +17,8 @@ from torch import Tensor, nn
 
 from ..mpm import SimConfig, StirringSimulator
 from ..recording import Recording, RecordingError
-from ..recording.resample import resample_force
-from ..recording.sensor import first_order_response, sensor_reading
+from ..recording.resample import resample_force, trajectory_at
+from ..recording.sensor import sensor_history, sensor_reading
 from ..rig import Cup, Rig, Rod
 from ..trajectory import Trajectory
 
@@ -123,13 +123,18 @@ class StirProblem:
         """Simulated readings [N] at ``self.times`` for ``material``; differentiable when grad is enabled.
 
         The simulated force is interpolated linearly to the recording's times (samples in the first half step,
-        before the first mid-step force, take that first force), read through the recording's sensor mode and,
-        when the sensor block states a ``time_constant``, through the sensor's first-order response.
+        before the first mid-step force, take that first force) and read through the recording's sensor mode;
+        when the sensor block states a ``time_constant``, the sensor's response acts on the simulated force at
+        every simulation step, before the sampling (``recording.sensor.sensor_history``).
         """
         result = self.simulator(material)(self.trajectory)
         sim_times = result.times.detach().cpu().numpy()
         at = np.clip(self.times, sim_times[0], sim_times[-1])
-        force = resample_force(sim_times, result.force[:, :2] * self.slice_length, at)
+        force, spec = result.force[:, :2] * self.slice_length, self.recording.sensor
+        if spec.time_constant:  # the sensor responds to the force at every step, not only at its samples
+            _, velocity = trajectory_at(self.recording, np.clip(sim_times, self.recording.t[0], self.recording.t[-1]))
+            velocity = torch.as_tensor(velocity, dtype=force.dtype, device=force.device)
+            return resample_force(sim_times, sensor_history(force, velocity, sim_times, spec), at)
+        force = resample_force(sim_times, force, at)
         velocity = torch.as_tensor(self.velocity, dtype=force.dtype, device=force.device)
-        reading = sensor_reading(force, velocity, self.recording.sensor)
-        return first_order_response(reading, self.times, self.recording.sensor.time_constant)
+        return sensor_reading(force, velocity, spec)

@@ -9,17 +9,20 @@ The readings are smooth so that a fitter can backpropagate through them:
 * one_sided:  relu(value)
 
 and, when the spec states a ``time_constant`` τ, through the sensor's first-order response τ dy/dt = x − y
-(``first_order_response``), applied to the reading at the recording's sample times.
+(``first_order_response``), applied as a real sensor does, to the whole force history before it is sampled and
+before a one-sided sensor clips it (``sensor_history``).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import torch
 
 from diffstir.recording.errors import RecordingError
 from diffstir.recording.format import SENSOR_MODES, Recording, SensorSpec
-from diffstir.recording.resample import resample_force
+from diffstir.recording.resample import resample_force, trajectory_at
 
 RESPONSE_BLOCK = 256  # samples per block of first_order_response's exact scan
 VELOCITY_EPS = 1e-4  # m/s: the rod speed below which the tangential direction fades out smoothly
@@ -90,6 +93,16 @@ def first_order_response(x: torch.Tensor, times, time_constant: float | None) ->
     return torch.cat(blocks)
 
 
+def sensor_history(force_xy: torch.Tensor, velocity_xy: torch.Tensor | None, times, spec: SensorSpec) -> torch.Tensor:
+    """The readings [N], (S,), that a sensor as ``spec`` states it gives of the force history ``force_xy`` [N]
+    (S, 2) on a rod moving at ``velocity_xy`` [m/s] (S, 2; tangential mode only), at increasing ``times`` [s]
+    (S,): the mode's value, through the stated first-order response, then clipped if one-sided, the order of a
+    real sensor (the element responds to the force; the clip is on what it reports)."""
+    value = sensor_reading(force_xy, velocity_xy, replace(spec, one_sided=False))
+    value = first_order_response(value, times, spec.time_constant)
+    return torch.relu(value) if spec.one_sided else value
+
+
 def sensor_reading_np(force_xy, velocity_xy, spec: SensorSpec) -> np.ndarray:
     """sensor_reading on numpy arrays, in float64."""
     force = torch.as_tensor(np.asarray(force_xy, dtype=np.float64))
@@ -100,8 +113,13 @@ def sensor_reading_np(force_xy, velocity_xy, spec: SensorSpec) -> np.ndarray:
 def simulated_reading(rec: Recording, sim_times, sim_force_xy: torch.Tensor) -> torch.Tensor:
     """What ``rec``'s sensor would have read [N], shape (T,), at the recording's times, had the fluid pushed the
     rod with the simulated horizontal force ``sim_force_xy`` [N] (S, 2) at ``sim_times`` [s] (S,):
-    resample_force to rec.t, sensor_reading with rec.velocity(), then the sensor's stated first-order response.
-    Compare it with ``rec.force``."""
+    resample_force to rec.t, then sensor_reading with rec.velocity(); with a stated ``time_constant``, the
+    sensor's history (``sensor_history``) on the simulation's times, with the velocities there, resampled to
+    rec.t. Compare it with ``rec.force``."""
+    if rec.sensor.time_constant:
+        _, velocity = trajectory_at(rec, np.clip(np.asarray(sim_times, dtype=np.float64), rec.t[0], rec.t[-1]))
+        velocity = torch.as_tensor(velocity, dtype=sim_force_xy.dtype, device=sim_force_xy.device)
+        return resample_force(sim_times, sensor_history(sim_force_xy, velocity, sim_times, rec.sensor), rec.t)
     force = resample_force(sim_times, sim_force_xy, rec.t)
     velocity = torch.as_tensor(rec.velocity(), dtype=force.dtype, device=force.device)
-    return first_order_response(sensor_reading(force, velocity, rec.sensor), rec.t, rec.sensor.time_constant)
+    return sensor_reading(force, velocity, rec.sensor)
