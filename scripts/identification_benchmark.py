@@ -110,9 +110,10 @@ def newtonian_part(args) -> list[dict]:
         density = args.density
         fluid = Fluid(name=f"newtonian {eta:g}", density=density, law={"name": "newtonian", "params": {"eta": eta}})
         lab = synthesise(fluid, trajectory, sim_config=truth_config, sensor=sensor, seed=args.seed + i)
+        model_error = MODEL_FORCE_ERROR if args.model_error is None else args.model_error
         result = identify(lab.recording, ("newtonian",), config=fine, coarse=coarse, baseline=False, window=None,
                           fine_iterations=args.fine_iterations, progress=False,
-                          sensor_nuisance=args.sensor_nuisance, model_error=MODEL_FORCE_ERROR if args.model_error is None else args.model_error)
+                          sensor_nuisance=args.sensor_nuisance, model_error=model_error)
         law = result.summary()["laws"]["newtonian"]
         fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"]
         rho = result.density
