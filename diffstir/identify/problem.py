@@ -17,8 +17,8 @@ from torch import Tensor, nn
 
 from ..mpm import SimConfig, StirringSimulator
 from ..recording import Recording, RecordingError
-from ..recording.resample import resample_force, trajectory_at
-from ..recording.sensor import sensor_history, sensor_reading
+from ..recording.resample import resample_force
+from ..recording.sensor import sensor_history_at, sensor_reading
 from ..rig import Cup, Rig, Rod
 from ..trajectory import Trajectory
 
@@ -125,16 +125,14 @@ class StirProblem:
         The simulated force is interpolated linearly to the recording's times (samples in the first half step,
         before the first mid-step force, take that first force) and read through the recording's sensor mode;
         when the sensor block states a ``time_constant``, the sensor's response acts on the simulated force at
-        every simulation step, before the sampling (``recording.sensor.sensor_history``).
+        every simulation step, before the sampling (``recording.sensor.sensor_history_at``).
         """
         result = self.simulator(material)(self.trajectory)
         sim_times = result.times.detach().cpu().numpy()
         at = np.clip(self.times, sim_times[0], sim_times[-1])
         force, spec = result.force[:, :2] * self.slice_length, self.recording.sensor
         if spec.time_constant:  # the sensor responds to the force at every step, not only at its samples
-            _, velocity = trajectory_at(self.recording, np.clip(sim_times, self.recording.t[0], self.recording.t[-1]))
-            velocity = torch.as_tensor(velocity, dtype=force.dtype, device=force.device)
-            return resample_force(sim_times, sensor_history(force, velocity, sim_times, spec), at)
+            return sensor_history_at(self.recording, sim_times, force, at)
         force = resample_force(sim_times, force, at)
         velocity = torch.as_tensor(self.velocity, dtype=force.dtype, device=force.device)
         return sensor_reading(force, velocity, spec)

@@ -9,10 +9,10 @@ model error make neighbouring residuals alike, and treating them as independent 
 narrow). The second term is the fitting simulator's discretisation error, taken as a common relative error ε of
 its force, ε ~ N(0, σ_m²): a reading p(1 + ε) moves the least-squares θ by ε J⁺ p. It does not shrink with more
 data and no residual shows it, because θ absorbs it (a grid that reads 3 % low returns a viscosity that much
-high); σ_m comes from the simulator's validation against closed forms (``MODEL_FORCE_ERROR``). A parameter is
-identifiable when its
-95 % interval is narrower than a factor ``MAX_FACTOR`` each way (log-scaled) or ``MAX_LINEAR_HALF_WIDTH``
-(dimensionless indices) and it did not end on a bound.
+high); σ_m comes from the simulator's validation against closed forms (``MODEL_FORCE_ERROR``).
+
+A parameter is identifiable when its 95 % interval is narrower than a factor ``MAX_FACTOR`` each way (log-scaled)
+or ``MAX_LINEAR_HALF_WIDTH`` (dimensionless indices) and it did not end on a bound.
 """
 
 from __future__ import annotations

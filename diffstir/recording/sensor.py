@@ -78,15 +78,15 @@ def first_order_response(x: torch.Tensor, times, time_constant: float | None) ->
     a = torch.exp(-h / time_constant)
     b = (time_constant / h) * (1.0 - a)
     shape = (-1,) + (1,) * (x.ndim - 1)
-    a_x, b_x = (v.to(x.dtype).to(x.device).reshape(shape) for v in (a, b))
+    a_x, b_x = (v.to(device=x.device, dtype=x.dtype).reshape(shape) for v in (a, b))
     c = torch.cat([x[:1], x[1:] - a_x * x[:-1] - (x[1:] - x[:-1]) * b_x])
     blocks, state = [], None
     for start in range(0, x.shape[0], RESPONSE_BLOCK):
         tb = t[start:start + RESPONSE_BLOCK]
         decay = torch.tril(torch.exp(-(tb[:, None] - tb[None, :]).clamp(min=0.0) / time_constant))
-        y = decay.to(x.dtype).to(x.device) @ c[start:start + RESPONSE_BLOCK]
+        y = decay.to(device=x.device, dtype=x.dtype) @ c[start:start + RESPONSE_BLOCK]
         if state is not None:
-            carry = torch.exp(-(tb - t[start - 1]) / time_constant).to(x.dtype).to(x.device).reshape(shape)
+            carry = torch.exp(-(tb - t[start - 1]) / time_constant).to(device=x.device, dtype=x.dtype).reshape(shape)
             y = y + carry * state
         blocks.append(y)
         state = y[-1]
@@ -103,6 +103,15 @@ def sensor_history(force_xy: torch.Tensor, velocity_xy: torch.Tensor | None, tim
     return torch.relu(value) if spec.one_sided else value
 
 
+def sensor_history_at(rec: Recording, sim_times, sim_force_xy: torch.Tensor, times) -> torch.Tensor:
+    """``sensor_history`` of the simulated horizontal force ``sim_force_xy`` [N] (S, 2) at ``sim_times`` [s] (S,),
+    with the rod's velocities there from the recording (``trajectory_at``), resampled to ``times`` [s]: what
+    ``rec``'s sensor reads when it states a response time."""
+    clipped = np.clip(np.asarray(sim_times, dtype=np.float64), rec.t[0], rec.t[-1])
+    velocity = torch.as_tensor(trajectory_at(rec, clipped)[1], dtype=sim_force_xy.dtype, device=sim_force_xy.device)
+    return resample_force(sim_times, sensor_history(sim_force_xy, velocity, sim_times, rec.sensor), times)
+
+
 def sensor_reading_np(force_xy, velocity_xy, spec: SensorSpec) -> np.ndarray:
     """sensor_reading on numpy arrays, in float64."""
     force = torch.as_tensor(np.asarray(force_xy, dtype=np.float64))
@@ -113,13 +122,10 @@ def sensor_reading_np(force_xy, velocity_xy, spec: SensorSpec) -> np.ndarray:
 def simulated_reading(rec: Recording, sim_times, sim_force_xy: torch.Tensor) -> torch.Tensor:
     """What ``rec``'s sensor would have read [N], shape (T,), at the recording's times, had the fluid pushed the
     rod with the simulated horizontal force ``sim_force_xy`` [N] (S, 2) at ``sim_times`` [s] (S,):
-    resample_force to rec.t, then sensor_reading with rec.velocity(); with a stated ``time_constant``, the
-    sensor's history (``sensor_history``) on the simulation's times, with the velocities there, resampled to
-    rec.t. Compare it with ``rec.force``."""
+    resample_force to rec.t, then sensor_reading with rec.velocity(); with a stated ``time_constant``,
+    ``sensor_history_at`` rec.t. Compare it with ``rec.force``."""
     if rec.sensor.time_constant:
-        _, velocity = trajectory_at(rec, np.clip(np.asarray(sim_times, dtype=np.float64), rec.t[0], rec.t[-1]))
-        velocity = torch.as_tensor(velocity, dtype=sim_force_xy.dtype, device=sim_force_xy.device)
-        return resample_force(sim_times, sensor_history(sim_force_xy, velocity, sim_times, rec.sensor), rec.t)
+        return sensor_history_at(rec, sim_times, sim_force_xy, rec.t)
     force = resample_force(sim_times, sim_force_xy, rec.t)
     velocity = torch.as_tensor(rec.velocity(), dtype=force.dtype, device=force.device)
     return sensor_reading(force, velocity, rec.sensor)
