@@ -41,14 +41,12 @@ from omegaconf import OmegaConf
 
 from diffstir.identify import identify
 from diffstir.identify.family import NEWTONIAN_CHANGE
-from diffstir.identify.uncertainty import MODEL_FORCE_ERROR
+from diffstir.identify.uncertainty import COARSE_FORCE_ERROR, MODEL_FORCE_ERROR
 from diffstir.lab import Fluid, SensorModel, make_fluid_law, stirring_programme, synthesise
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 NEWTONIAN_PROGRAMME = [{"speed": 0.1, "duration": 1.3}]                  # m/s, s: 15 mm circle, period 0.94 s
-#: The 5 mm grid's relative force error: its Newtonian Couette torque is 6.3 % low (docs/validation.md).
-COARSE_FORCE_ERROR = 0.063
 LAW_PROGRAMME = [{"speed": s, "duration": 0.6} for s in (0.03, 0.06, 0.12)]  # m/s, s: a factor 4 in speed
 RADIUS, RAMP = 0.015, 0.2  # m, s
 def sim(path: str):

@@ -23,6 +23,7 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from diffstir.identify.uncertainty import COARSE_FORCE_ERROR
 from diffstir.lab import Blend, Fluid, SensorModel, stirring_programme, synthesise_blend, write_lab_recording
 from diffstir.mixing import analyse_mixing, blend_range, lederer_roegiers, write_mixing_report
 
@@ -55,7 +56,7 @@ def main() -> None:
     recording_dir, truth_file = write_lab_recording(lab, args.out / "blend", overwrite=True)
     truth_seconds = time.perf_counter() - started
     result = analyse_mixing(lab.recording, config=fit_config, viscosities=(eta1, eta2), fraction=fraction,
-                            window=args.window)
+                            window=args.window, model_error=COARSE_FORCE_ERROR)
     write_mixing_report(result, args.out / "report")
     m = result.summary()["mixing"]
     history = json.loads(truth_file.read_text())["mixing"]

@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from diffstir.behaviour import CLASSES, characterise, classify, log_slope, speed_windows
+from diffstir.behaviour.apparent import with_baseline
 from diffstir.behaviour.classify import YIELD_CRITICAL
-from diffstir.identify.uncertainty import Z95
+from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
 from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, save_recording
@@ -91,6 +92,22 @@ def test_model_flow_curves_get_their_class(label, viscosity):
     assert result.confidence >= 0.95 - 3 * math.sqrt(0.95 * 0.05 / 50)
     if label == "shear_thinning":  # a power law: nothing for the yield stress to explain
         assert result.yield_statistic < YIELD_CRITICAL
+
+
+def test_window_interval_carries_the_simulators_force_error():
+    # a drag p = c η^e read with noise: a relative force error σ_m of the simulator moves ln η by σ_m / e whatever
+    # the noise (the readings' Jacobian d p / d ln η is e p); the noise's own error is the least-squares one
+    rng = np.random.default_rng(0)
+    readings = 0.02 * (1.0 + 0.3 * np.sin(np.linspace(0.0, 6.0, 400)))  # N
+    residuals = 1e-4 * rng.normal(size=readings.size)
+    for elasticity in (0.1, 0.5, 1.0):
+        _, noise_std, model_std, _ = with_baseline(elasticity * readings, residuals, 0.0, 0.0, readings, 0.063)
+        assert model_std == pytest.approx(0.063 / elasticity, rel=1e-9)
+        s2 = residuals @ residuals / (residuals.size - 1)
+        n_eff = min(effective_samples(residuals), residuals.size)
+        information = elasticity**2 * readings @ readings  # J·J [N²]
+        assert noise_std == pytest.approx(math.sqrt(s2 * residuals.size / n_eff / information), rel=1e-9)
+    assert with_baseline(readings, residuals, 0.0, 0.0, readings, 0.0)[2] == 0.0
 
 
 def test_classify_refuses_bad_points():

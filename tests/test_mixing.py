@@ -115,6 +115,21 @@ def test_exponential_approach_recovers_its_parameters():
     assert a.homogeneity_time_ci95[0] < a.homogeneity_time < a.homogeneity_time_ci95[1]
 
 
+def test_a_systematic_error_widens_the_plateau_not_the_course():
+    # an error common to every window (the simulator's) moves the whole course: the plateau's interval adds it in
+    # quadrature, the fitted course and the time to homogeneity (a question of its shape) are unchanged
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.2, 4.0, 12)
+    sigma = np.full(t.size, 0.02)
+    eta = 0.3 * np.exp(1.2 * np.exp(-(t - t[0]) / 0.8) + sigma * rng.normal(size=t.size))
+    plain, wide = fit_approach(t, eta, sigma), fit_approach(t, eta, sigma, systematic=0.1)
+    stat = math.log(plain.plateau_ci95[1] / plain.plateau)
+    assert math.log(wide.plateau_ci95[1] / wide.plateau) == pytest.approx(math.hypot(stat, Z95 * 0.1))
+    assert wide.plateau == plain.plateau and wide.homogeneity_time == plain.homogeneity_time
+    with pytest.raises(ValueError, match="systematic"):
+        fit_approach(t, eta, sigma, systematic=-0.1)
+
+
 def test_homogeneity_time_interval_covers_the_truth_about_95_percent_of_the_time():
     # the true t_h of the noiseless course, defined with the fit's own plateau half-width: the delta-method interval
     # is approximate, so its coverage over 200 noisy courses must be near 95 % (binomial sd 1.5 %), not exact

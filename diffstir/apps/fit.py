@@ -88,7 +88,7 @@ def behaviour(cfg: DictConfig) -> None:
                           config=instantiate(cfg.sim), density=cfg.density, iterations=b.iterations,
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, replicates=b.replicates,
-                          seed=b.seed)
+                          seed=b.seed, model_error=b.model_error)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     c = result.classification
@@ -105,7 +105,7 @@ def mixing(cfg: DictConfig) -> None:
     m = cfg.mixing
     result = analyse_mixing(load_recording(to_absolute_path(str(cfg.recordings[0]))), config=instantiate(cfg.sim),
                             viscosities=tuple(m.viscosities), fraction=m.fraction, window=m.window,
-                            density=cfg.density, iterations=m.iterations)
+                            density=cfg.density, iterations=m.iterations, model_error=m.model_error)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_mixing_report(result, out)
     a = result.approach

@@ -13,6 +13,12 @@ on the fit's Jacobian J and residuals r:
 whose inverse matrix is the covariance; s² = RSS/(N − 1) and N_eff (``identify.uncertainty``) come from the
 Newtonian fit's residuals. Where the reading cannot tell a baseline from the drag, the interval of ln η widens.
 
+The simulator's own force error, a relative error σ_m of the simulated readings p (``identify.uncertainty``), moves
+ln η by σ_m times the same step's response to p, (Δ ln η, b) = σ_m C ω Aᵀ p with C the covariance above: about
+σ_m / e for a drag F ∝ η^e. It is reported apart from the noise's error (``model_log_std``), because it does not
+average out over windows: where the drag is set by inertia (e → 0 at high Reynolds numbers) the viscosity is not
+measured, whatever the noise, and that window's interval says so.
+
 The Newtonian-equivalent viscosity η_N is the fluid's apparent viscosity at the window's Metzner-Otto effective
 shear rate γ̇_eff = k_s U / a [1/s] (U the rod's speed, a its radius; k_s measured with the power-law probe of
 ``identify.initial.effective_shear_rate``). The simulation runs from the recording's first sample to the
@@ -31,7 +37,7 @@ import numpy as np
 
 from ..identify import FitModel, StirProblem, Windows, fit_model
 from ..identify.initial import ViscosityLadder, effective_shear_rate
-from ..identify.uncertainty import Z95, effective_samples
+from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, effective_samples
 from ..mpm import SimConfig
 from ..recording import Recording
 from .windows import SpeedWindow
@@ -50,7 +56,9 @@ class ViscosityPoint:
         speed: the rod's mean speed U [m/s].
         measured_shear_rate: the window's effective shear rate γ̇_eff [1/s] as measured by the power-law probe.
         viscosity: the Newtonian-equivalent viscosity η_N [Pa·s].
-        log_std: standard error of ln η_N [1].
+        log_std: standard error of ln η_N from the reading's noise and baseline [1].
+        model_log_std: standard error of ln η_N from the simulator's relative force error σ_m [1] (module
+            docstring); common to windows of similar Reynolds number.
         baseline: the sensor's baseline in the window [N] (a nuisance parameter, module docstring).
         resolvable: whether the reading's level lies above that of the lowest informative ladder probe (a thinner
             fluid's drag is set by inertia, not viscosity).
@@ -63,6 +71,7 @@ class ViscosityPoint:
     measured_shear_rate: float
     viscosity: float
     log_std: float
+    model_log_std: float
     baseline: float
     resolvable: bool
     loss: float
@@ -74,16 +83,22 @@ class ViscosityPoint:
         return self.measured_shear_rate * self.window.recording.rod.radius / self.speed
 
     @property
+    def total_log_std(self) -> float:
+        """Standard error of ln η_N from the noise and the simulator together [1]."""
+        return math.hypot(self.log_std, self.model_log_std)
+
+    @property
     def ci95(self) -> tuple[float, float]:
-        """95 % interval of η_N [Pa·s], symmetric in ln η."""
-        half = Z95 * self.log_std
+        """95 % interval of η_N [Pa·s] from both errors, symmetric in ln η."""
+        half = Z95 * self.total_log_std
         return self.viscosity * math.exp(-half), self.viscosity * math.exp(half)
 
     def summary(self) -> dict:
         return {"window": self.window.label, "start": self.window.start, "end": self.window.end,
                 "speed": self.speed, "measured_shear_rate": self.measured_shear_rate,
                 "metzner_otto": self.metzner_otto, "viscosity": self.viscosity,
-                "viscosity_ci95": list(self.ci95), "log_std": self.log_std, "baseline": self.baseline,
+                "viscosity_ci95": list(self.ci95), "log_std": self.log_std,
+                "model_log_std": self.model_log_std, "baseline": self.baseline,
                 "resolvable": self.resolvable,
                 "loss": self.loss, "evaluations": self.evaluations,
                 "units": {"speed": "m/s", "measured_shear_rate": "1/s", "metzner_otto": "1", "viscosity": "Pa s",
@@ -91,11 +106,14 @@ class ViscosityPoint:
 
 
 def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, guess: float | None = None,
-                     iterations: int = 3) -> ViscosityPoint:
+                     iterations: int = 3, model_error: float = MODEL_FORCE_ERROR) -> ViscosityPoint:
     """The apparent viscosity of ``window`` (see the module docstring) on the simulation ``config`` for a fluid of
     ``density`` [kg/m³]. ``guess`` [Pa·s] (a neighbouring window's viscosity) shortens the ladder to two probes a
     factor ``LADDER_FACTOR`` either side; without it the full ladder (one probe per decade) is simulated.
-    ``iterations``: Gauss-Newton iterations of the Newtonian fit."""
+    ``iterations``: Gauss-Newton iterations of the Newtonian fit. ``model_error``: the relative 1-σ error σ_m of
+    ``config``'s simulated force (``identify.uncertainty``; 0 leaves it out)."""
+    if not (math.isfinite(model_error) and 0.0 <= model_error < 1.0):
+        raise ValueError(f"model_error = {model_error!r}; expected a relative force error in [0, 1)")
     config = recording_config(config, window.recording)
     problem = StirProblem(window.recording, config, density, Windows(window.start, window.end, window.end))
     evaluations = 0
@@ -110,13 +128,14 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
         ladder = ViscosityLadder.simulate(problem, (guess / LADDER_FACTOR, guess * LADDER_FACTOR), on_evaluation=count)
     fit = fit_model(problem, FitModel.named("newtonian", eta=ladder.estimate(problem)), max_iterations=iterations)
     evaluations += fit.evaluations
-    log_eta, log_std, baseline = with_baseline(fit.jacobian[problem.train, 0],
-                                               (problem.measured - fit.predicted)[problem.train], fit.theta[0],
-                                               window.recording.sensor.resolution or 0.0)
+    train = problem.train
+    log_eta, log_std, model_log_std, baseline = with_baseline(
+        fit.jacobian[train, 0], (problem.measured - fit.predicted)[train], fit.theta[0],
+        window.recording.sensor.resolution or 0.0, fit.simulated_readings[train], model_error)
     eta = math.exp(log_eta)
     rate = effective_shear_rate(problem, eta, on_evaluation=count)
     return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,
-                          log_std=log_std, baseline=baseline,
+                          log_std=log_std, model_log_std=model_log_std, baseline=baseline,
                           resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))),
                           loss=fit.loss, evaluations=evaluations)
 
@@ -128,11 +147,12 @@ def recording_config(config: SimConfig, recording: Recording) -> SimConfig:
     return replace(config, dt_max=min(config.dt_max, config.cfl * config.dx / (config.sound_speed + u_max)))
 
 
-def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float,
-                  resolution: float) -> tuple[float, float, float]:
-    """ln η, its standard error and the baseline b [N] from the Gauss-Newton step with the baseline's prior
-    (module docstring): ``jacobian`` d reading / d ln η [N], ``residuals`` measured − fitted [N], ``log_eta`` the
-    fit's ln η, ``resolution`` q [N] (0: no baseline)."""
+def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float, resolution: float,
+                  readings: np.ndarray | None = None, model_error: float = 0.0) -> tuple[float, float, float, float]:
+    """ln η, its standard errors from the noise and from the simulator, and the baseline b [N], from the
+    Gauss-Newton step with the baseline's prior (module docstring): ``jacobian`` d reading / d ln η [N],
+    ``residuals`` measured − fitted [N], ``log_eta`` the fit's ln η, ``resolution`` q [N] (0: no baseline),
+    ``readings`` the simulated readings p [N] and ``model_error`` their relative error σ_m [1]."""
     n = residuals.size
     weight = min(effective_samples(residuals), float(n)) / n / max(float(residuals @ residuals) / max(n - 1, 1),
                                                                     1e-300)
@@ -142,12 +162,13 @@ def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float,
         precision[1, 1] += 1.0 / resolution**2
     else:
         precision[1, :], precision[:, 1], precision[1, 1] = 0.0, 0.0, 1.0  # b held at 0
-    rhs = weight * design.T @ residuals
-    if resolution <= 0:
-        rhs[1] = 0.0
+    keep = np.array([1.0, 1.0 if resolution > 0 else 0.0])
+    rhs = weight * design.T @ residuals * keep
     try:
         covariance = np.linalg.inv(precision)
     except np.linalg.LinAlgError:  # a reading that does not change with η: nothing to estimate
-        return log_eta, math.inf, 0.0
+        return log_eta, math.inf, math.inf, 0.0
     step = covariance @ rhs
-    return log_eta + float(step[0]), math.sqrt(max(float(covariance[0, 0]), 0.0)), float(step[1])
+    shift = covariance @ (weight * design.T @ readings * keep) if readings is not None else np.zeros(2)
+    return (log_eta + float(step[0]), math.sqrt(max(float(covariance[0, 0]), 0.0)),
+            model_error * abs(float(shift[0])), float(step[1]))

@@ -90,7 +90,7 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     problem = JointProblem([p.window for p in points], config, density)
     g = np.asarray(shear_rates, dtype=np.float64)
     eta = np.array([p.viscosity for p in points])
-    w = 1.0 / np.array([p.log_std for p in points]) ** 2
+    w = 1.0 / np.array([p.total_log_std for p in points]) ** 2
     curve = FlowCurve(g, eta * g)
     middle = int(np.argsort(g)[g.size // 2])
     fits, uncertainty = {}, {}

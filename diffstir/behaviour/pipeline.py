@@ -21,6 +21,7 @@ import numpy as np
 
 from ..density import estimate_recording_density
 from ..identify.pipeline import configured_density
+from ..identify.uncertainty import MODEL_FORCE_ERROR
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .apparent import ViscosityPoint, window_viscosity
@@ -62,7 +63,7 @@ class Behaviour:
 def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 3,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, replicates: int = 200,
-                 seed: int = 0) -> Behaviour:
+                 seed: int = 0, model_error: float = MODEL_FORCE_ERROR) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
@@ -73,6 +74,9 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
             Gauss-Newton iterations.
         speed_tolerance, min_window: what counts as one speed (``windows.speed_windows``).
         replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
+        model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
+            (``apparent``); the default is the fitting grid's (``identify.uncertainty``), raise it for a coarser
+            one (``COARSE_FORCE_ERROR`` for ``conf/sim/coarse2d.yaml``).
     """
     started = time.perf_counter()
     if not recordings:
@@ -82,7 +86,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     for rec in recordings:
         guess = None
         for window in speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window):
-            points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations))
+            points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations,
+                                           model_error=model_error))
             guess = points[-1].viscosity
     used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
     if len({round(p.speed, 6) for p in used}) < 2:
@@ -91,7 +96,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
                                          for p in points) + "); stir faster or at more speeds")
     k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
     rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
-    result = classify(rates, [p.viscosity for p in used], [p.log_std for p in used], replicates=replicates,
+    result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used], replicates=replicates,
                       seed=seed)
     joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations) \
         if joint_models else None

@@ -32,6 +32,8 @@ AT_BOUND = 1e-3              # of the θ range: closer than this to a bound coun
 #: σ_m, the relative 1-σ error of the default fitting grid's force (the 2-D slice, dx = 2.5 mm): the rms of its
 #: closed-form checks, the Newtonian Couette torque −3.2 % and the power-law one +2.8 % (docs/validation.md).
 MODEL_FORCE_ERROR = 0.03
+#: σ_m of the coarse grid (``conf/sim/coarse2d.yaml``, dx = 5 mm): its Newtonian Couette torque is 6.3 % low.
+COARSE_FORCE_ERROR = 0.063
 
 
 @dataclass

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..behaviour import ViscosityPoint, combined_density
+from ..identify.uncertainty import MODEL_FORCE_ERROR
 from ..mpm import SimConfig
 from ..plots import pyplot, save_figure
 from ..recording import Recording
@@ -61,17 +62,21 @@ class Mixing:
 
 
 def analyse_mixing(recording: Recording, *, config: SimConfig, viscosities: tuple[float, float], fraction: float,
-                   window: float = 0.5, density: float | None = None, iterations: int = 3) -> Mixing:
+                   window: float = 0.5, density: float | None = None, iterations: int = 3,
+                   model_error: float = MODEL_FORCE_ERROR) -> Mixing:
     """Track the apparent viscosity of ``recording`` over ``window``-second windows, fit its approach to a plateau
     and compare the plateau with the Lederer-Roegiers range of the components' ``viscosities`` (η1 > η2) [Pa·s]
-    at volume fraction ``fraction`` φ [1] of fluid 1. ``density`` [kg/m³]: used only without a density block."""
+    at volume fraction ``fraction`` φ [1] of fluid 1. ``density`` [kg/m³]: used only without a density block.
+    ``model_error``: the relative force error σ_m of ``config`` (``behaviour.window_viscosity``); the plateau's
+    interval carries it as read in the last window, where the course ends."""
     started = time.perf_counter()
     eta1, eta2 = (float(v) for v in viscosities)
     blend_range(eta1, eta2, fraction)  # checks the components before the simulations
     rho = combined_density([recording], density)
-    points = track_viscosity(recording, config, rho["value"], window, iterations=iterations)
+    points = track_viscosity(recording, config, rho["value"], window, iterations=iterations, model_error=model_error)
     times = [0.5 * (p.window.start + p.window.end) for p in points]
-    approach = fit_approach(times, [p.viscosity for p in points], [p.log_std for p in points])
+    approach = fit_approach(times, [p.viscosity for p in points], [p.log_std for p in points],
+                            systematic=points[-1].model_log_std)
     return Mixing(rho, points, approach, (eta1, eta2), float(fraction), time.perf_counter() - started)
 
 

@@ -15,6 +15,11 @@ t_h = t_0 + τ ln(|Δ| / (1.96 σ(ln η_∞))) (t_0 when it starts there), with 
 covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (never before t_0; none when t_h = t_0). A course
 the approach cannot describe (flat, Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its
 plateau, t_h = t_0 and τ unknown; the report's time course shows whether that is a plateau or a drift.
+
+The simulator's own force error (``behaviour.apparent``: σ_m / e in ln η) is common to every window of one speed:
+it does not average out over the windows, so the plateau's interval adds it in full, in quadrature, while the
+half-width that decides homogeneity is the noise's alone (a bias of the simulator moves the whole course, not its
+shape).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import numpy as np
 from scipy import optimize
 
 from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows, window_viscosity
-from ..identify.uncertainty import Z95
+from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..recording import Recording
 
@@ -84,11 +89,14 @@ class Approach:
                 "units": {"plateau": "Pa s", "time_constant": "s", "start": "s", "homogeneity_time": "s"}}
 
 
-def fit_approach(times, viscosity, log_std) -> Approach:
+def fit_approach(times, viscosity, log_std, systematic: float = 0.0) -> Approach:
     """The exponential approach (module docstring) to viscosities ``viscosity`` [Pa·s] with standard errors
     ``log_std`` of ln η at ``times`` [s]; needs four windows or more (three parameters and one degree of
-    freedom)."""
+    freedom). ``systematic``: a standard error of ln η common to every window [1] (the simulator's), which the
+    plateau's interval carries in full and the shape of the course (Δ, τ, the time to homogeneity) does not."""
     t, eta, s = (np.asarray(v, dtype=np.float64) for v in (times, viscosity, log_std))
+    if not systematic >= 0.0:
+        raise ValueError(f"mixing: systematic = {systematic!r}; expected a standard error of ln eta >= 0")
     if t.size < 4:
         raise ValueError(f"mixing: {t.size} windows; the time course needs at least 4 (shorten mixing.window)")
     if not (np.all(eta > 0) and np.all(np.isfinite(s)) and np.all(s > 0)):
@@ -114,42 +122,47 @@ def fit_approach(times, viscosity, log_std) -> Approach:
         if best is None or chi2 < best[2]:
             best = (p, cov, chi2)
     if best is None or not np.all(np.isfinite(best[1])) or not lo + 1e-6 < best[0][2] < hi - 1e-6:  # on a bound
-        return _constant(t, y, s)
+        return _constant(t, y, s, systematic)
     p, cov, chi2 = best
     birge2 = max(1.0, chi2 / (t.size - 3))
     se = np.sqrt(np.diag(cov) * birge2)
     a, b, log_tau = p
     tau = math.exp(log_tau)
     half = Z95 * se[0]
+    plateau_half = Z95 * math.hypot(se[0], systematic)
     ratio = abs(b) / half if half > 0 else math.inf
     after = tau * math.log(ratio) if ratio > 1 else 0.0  # t_h - t_0
-    gradient = np.array([0.0, tau / b, after])  # d t_h / d (a, Δ, ln τ)
-    # an excess within the plateau's half-width from the start: homogeneous from t_0 on, no interval to give
-    spread = Z95 * math.sqrt(float(gradient @ (cov * birge2) @ gradient)) if after > 0 else math.nan
-    return Approach(plateau=math.exp(a), plateau_ci95=(math.exp(a - half), math.exp(a + half)), excess=float(b),
+    if after > 0:
+        gradient = np.array([0.0, tau / b, after])  # d t_h / d (a, Δ, ln τ)
+        spread = Z95 * math.sqrt(float(gradient @ (cov * birge2) @ gradient))
+    else:  # an excess within the plateau's half-width from the start: homogeneous from t_0 on, no interval to give
+        spread = math.nan
+    return Approach(plateau=math.exp(a), plateau_ci95=(math.exp(a - plateau_half), math.exp(a + plateau_half)),
+                    excess=float(b),
                     time_constant=tau, time_constant_ci95=(tau * math.exp(-Z95 * se[2]), tau * math.exp(Z95 * se[2])),
                     start=t0, homogeneity_time=t0 + after,
                     homogeneity_time_ci95=(t0 + max(after - spread, 0.0), t0 + after + spread),
                     birge=math.sqrt(birge2))
 
 
-def _constant(t: np.ndarray, y: np.ndarray, s: np.ndarray) -> Approach:
+def _constant(t: np.ndarray, y: np.ndarray, s: np.ndarray, systematic: float) -> Approach:
     """No resolvable approach (a flat course, or Δ and τ not separable): the weighted mean of ln η as the plateau,
     homogeneous from the first window, τ unknown (nan)."""
     w = 1.0 / s**2
     mean = float(np.sum(w * y) / w.sum())
     birge = math.sqrt(max(1.0, float(np.sum(w * (y - mean) ** 2)) / (t.size - 1)))
-    half = Z95 * birge / math.sqrt(w.sum())
+    half = Z95 * math.hypot(birge / math.sqrt(w.sum()), systematic)
     return Approach(plateau=math.exp(mean), plateau_ci95=(math.exp(mean - half), math.exp(mean + half)), excess=0.0,
                     time_constant=math.nan, time_constant_ci95=(math.nan, math.nan), start=float(t[0]),
                     homogeneity_time=float(t[0]), homogeneity_time_ci95=(math.nan, math.nan), birge=birge)
 
 
 def track_viscosity(recording: Recording, config: SimConfig, density: float, window: float, *,
-                    iterations: int = 3) -> list[ViscosityPoint]:
-    """The apparent viscosity of each ``window``-second window of ``recording`` (module docstring)."""
+                    iterations: int = 3, model_error: float = MODEL_FORCE_ERROR) -> list[ViscosityPoint]:
+    """The apparent viscosity of each ``window``-second window of ``recording`` (module docstring), with
+    ``model_error`` the relative force error of ``config`` (``behaviour.window_viscosity``)."""
     points: list[ViscosityPoint] = []
     for w in time_windows(recording, window):
         points.append(window_viscosity(w, config, density, guess=points[-1].viscosity if points else None,
-                                       iterations=iterations))
+                                       iterations=iterations, model_error=model_error))
     return points
