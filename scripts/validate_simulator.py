@@ -1,6 +1,7 @@
 """Compare the simulator with closed-form solutions and print a markdown table (docs/validation.md).
 
-    python scripts/validate_simulator.py [--checks couette power_law translate rest3d] [--rest-time 8]
+    python scripts/validate_simulator.py [--checks couette power_law translate translate_viscosity rest3d]
+        [--rest-time 8]
 
 Checks:
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
@@ -9,6 +10,8 @@ Checks:
   2 pi K a^2 [2 Omega / (n (1 - (a/b)^(2/n)))]^n.
 - translate: rod translating at 1 mm/s at the centre, 2-D, mu = 1 Pa s; steady force per unit length against
   4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)], at two sound speeds.
+- translate_viscosity: the translating rod at c = 2 m/s at mu = 1 and 0.2 Pa s on 2.5 and 2 mm cells: whether
+  the drag's excess over the exact one scales with the viscosity (not run by default).
 - rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): the fluid's volume by its particles'
   J (sum J V0), the height of its centre of mass (at rest neither may change), and the vertical force against
   rho g V_immersed.
@@ -63,12 +66,13 @@ def power_law_couette(dx: float, sound_speed: float) -> tuple[str, float, float]
             -steady(result.torque), couette_torque_power_law(k, n, omega, A, B))
 
 
-def translating(dx: float, sound_speed: float) -> tuple[str, float, float]:
-    sim = StirringSimulator(Newtonian(eta=1.0), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
+def translating(dx: float, sound_speed: float, mu: float = 1.0) -> tuple[str, float, float]:
+    sim = StirringSimulator(Newtonian(eta=mu), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
     with torch.no_grad():
         result = sim(translate((1e-3, 0.0), duration=1.0, start=(-0.5e-3, 0.0)))
-    return (f"translating rod drag, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s [N/m]",
-            -steady(result.force[:, 0]), translating_rod_force(1.0, 1e-3, A, B))
+    viscosity = "" if mu == 1.0 else f", mu = {mu:g} Pa s"
+    return (f"translating rod drag, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s{viscosity} [N/m]",
+            -steady(result.force[:, 0]), translating_rod_force(mu, 1e-3, A, B))
 
 
 def rest3d(duration: float) -> list[tuple[str, float, float]]:
@@ -101,6 +105,7 @@ def main() -> None:
     checks = {
         "couette": lambda: [couette(0.005, 2.0), couette(0.0025, 2.0), couette(0.0025, 1.0)],
         "translate": lambda: [translating(0.0025, 2.0), translating(0.0025, 0.5)],
+        "translate_viscosity": lambda: [translating(dx, 2.0, mu) for dx in (0.0025, 0.002) for mu in (1.0, 0.2)],
         "power_law": lambda: [power_law_couette(0.0025, 2.0)],
         "rest3d": lambda: rest3d(args.rest_time),
     }
