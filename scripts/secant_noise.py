@@ -1,12 +1,12 @@
 """How short a secant step the simulated readings allow: d ln p / d ln η over steps h in ln η, against central
-finite differences, and the float32 round-off of the readings.
+finite differences, and the gap between float32 and float64 readings.
 
 The Newtonian benchmark's 3 Pa·s case (``identification_benchmark.py --part newtonian``: the lab's 2-D truth,
 the paper's sensor, one 15 mm circle at 0.1 m/s for 1.3 s, seed 5) fitted on the default grid
 (``conf/sim/slice2d.yaml``). The elasticity over a step h is the least-squares ratio
-e(h) = (p(θ + h) − p(θ))·p(θ) / (h p(θ)·p(θ)), θ = ln η; its error is about the readings' relative round-off
-divided by h, which is why ``identify.optimise`` makes no Broyden update over a step shorter than
-``SECANT_FRACTION`` · ``FD_STEP``.
+e(h) = (p(θ + h) − p(θ))·p(θ) / (h p(θ)·p(θ)), θ = ln η; its error is about the readings' relative noise
+between nearby viscosities divided by h, which is why ``identify.optimise`` makes no Broyden update over a step
+shorter than ``SECANT_FRACTION`` · ``FD_STEP``.
 
     python scripts/secant_noise.py [--eta 3.0] [--steps 6.4e-4 2e-3 1e-2 5e-2]
 """
@@ -67,7 +67,7 @@ def main() -> None:
     print(f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, torch {torch.__version__}, "
           f"{torch.get_num_threads()} thread; eta = {args.eta:g} Pa s on conf/sim/slice2d.yaml, "
           f"{p0.size} samples")
-    print(f"relative round-off of the float32 readings, |p32 - p64| / |p64|: "
+    print(f"float32 readings against float64 ones at the same eta, |p32 - p64| / |p64|: "
           f"{np.linalg.norm(p0 - p64) / np.linalg.norm(p64):.2e}")
     h = FD_STEP["log"]
     central = float((readings(theta + h) - readings(theta - h)) @ p0 / (2 * h * (p0 @ p0)))

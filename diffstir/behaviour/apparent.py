@@ -37,7 +37,7 @@ import numpy as np
 
 from ..identify import FitModel, StirProblem, Windows, fit_model
 from ..identify.initial import ViscosityLadder, effective_shear_rate
-from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, effective_samples
+from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples
 from ..mpm import SimConfig
 from ..recording import Recording
 from .windows import SpeedWindow
@@ -112,8 +112,7 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
     factor ``LADDER_FACTOR`` either side; without it the full ladder (one probe per decade) is simulated.
     ``iterations``: Gauss-Newton iterations of the Newtonian fit. ``model_error``: the relative 1-σ error σ_m of
     ``config``'s simulated force (``identify.uncertainty``; 0 leaves it out)."""
-    if not (math.isfinite(model_error) and 0.0 <= model_error < 1.0):
-        raise ValueError(f"model_error = {model_error!r}; expected a relative force error in [0, 1)")
+    checked_model_error(model_error, "model_error")
     config = recording_config(config, window.recording)
     problem = StirProblem(window.recording, config, density, Windows(window.start, window.end, window.end))
     evaluations = 0
@@ -148,7 +147,7 @@ def recording_config(config: SimConfig, recording: Recording) -> SimConfig:
 
 
 def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float, resolution: float,
-                  readings: np.ndarray | None = None, model_error: float = 0.0) -> tuple[float, float, float, float]:
+                  readings: np.ndarray, model_error: float) -> tuple[float, float, float, float]:
     """ln η, its standard errors from the noise and from the simulator, and the baseline b [N], from the
     Gauss-Newton step with the baseline's prior (module docstring): ``jacobian`` d reading / d ln η [N],
     ``residuals`` measured − fitted [N], ``log_eta`` the fit's ln η, ``resolution`` q [N] (0: no baseline),
@@ -169,6 +168,6 @@ def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float, r
     except np.linalg.LinAlgError:  # a reading that does not change with η: nothing to estimate
         return log_eta, math.inf, math.inf, 0.0
     step = covariance @ rhs
-    shift = covariance @ (weight * design.T @ readings * keep) if readings is not None else np.zeros(2)
+    shift = covariance @ (weight * design.T @ readings * keep)  # d(ln η, b) per unit relative error of p
     return (log_eta + float(step[0]), math.sqrt(max(float(covariance[0, 0]), 0.0)),
             model_error * abs(float(shift[0])), float(step[1]))

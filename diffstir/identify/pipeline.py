@@ -32,7 +32,7 @@ from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
 from .optimise import FitResult, fit_model, noise_scale
 from .problem import StirProblem, Windows
 from .selection import bic, select
-from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, laplace, log_viscosity_interval
+from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, checked_model_error, laplace, log_viscosity_interval
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
@@ -156,8 +156,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, added to every interval
             (``uncertainty``; 0: the intervals hold the noise only).
     """
-    if not (math.isfinite(model_error) and 0.0 <= model_error < 1.0):
-        raise ValueError(f"fit.model_error = {model_error!r}; expected a relative force error in [0, 1)")
+    checked_model_error(model_error, "fit.model_error")
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)

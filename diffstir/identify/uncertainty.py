@@ -36,6 +36,13 @@ MODEL_FORCE_ERROR = 0.03
 COARSE_FORCE_ERROR = 0.063
 
 
+def checked_model_error(value: float, field: str) -> float:
+    """``value`` if it is a relative force error σ_m in [0, 1); otherwise a ValueError that names ``field``."""
+    if not (math.isfinite(value) and 0.0 <= value < 1.0):
+        raise ValueError(f"{field} = {value!r}; expected a relative force error in [0, 1)")
+    return value
+
+
 @dataclass
 class Uncertainty:
     """Covariance of θ and what it implies.
