@@ -1,8 +1,8 @@
 """Solid boundaries on the grid: the cup and the rod as signed distance fields, with ghost-fluid velocities.
 
-A node inside a solid (signed distance φ < 0, φ > 0 in the fluid) is given the solid's velocity plus the fluid's
-velocity relative to the solid, extrapolated linearly through the surface from a probe point a distance
-``PROBE_DISTANCE`` cells outside it:
+A node inside a solid or on its surface (signed distance φ ≤ ``ON_SURFACE`` cells, φ > 0 in the fluid; ``is_solid``)
+is given the solid's velocity plus the fluid's velocity relative to the solid, extrapolated linearly through the
+surface from a probe point a distance ``PROBE_DISTANCE`` cells outside it:
 
     no-slip:  tangential u_rel(node) = −(|φ|/δ) u_rel(probe)      (odd: zero on the surface φ = 0)
               normal     u_rel(node) = +(|φ|/δ)² u_rel(probe)     (even: zero with zero normal derivative on the
