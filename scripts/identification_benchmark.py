@@ -19,8 +19,8 @@ Two parts, each printing markdown tables:
 Every sensor reading goes through the paper's sensor preset (``conf/lab/sensor/paper.yaml``) with seed
 ``--seed`` + case index. One torch thread.
 
-    python scripts/identification_benchmark.py --part newtonian [--viscosities 0.001 0.01 ...] [--out DIR]
-    python scripts/identification_benchmark.py --part laws [--fluids cs24 ketchup ...] [--out DIR]
+    python scripts/identification_benchmark.py --part newtonian [--viscosities 0.001 0.01 ...] [--out FILE.json]
+    python scripts/identification_benchmark.py --part laws [--fluids cs24 ketchup ...] [--out FILE.json]
 """
 
 from __future__ import annotations
@@ -236,6 +236,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None,
                         help="write the rows as JSON here after every case; a rerun skips the cases it holds")
     args = parser.parse_args()
+    if args.out is not None and args.out.is_dir():
+        parser.error(f"--out {args.out} is a directory; give the JSON file the rows go to, e.g. {args.out}/rows.json")
     torch.set_num_threads(1)
     started = time.perf_counter()
     print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average "
