@@ -37,11 +37,12 @@ TRUST_RADIUS = {"log": 1.0, "linear": 0.25}
 #: Finite-difference steps in θ: 5 % relative change of a log-scaled parameter, 0.02 of a dimensionless index.
 FD_STEP = {"log": 0.05, "linear": 0.02}
 
-#: A Broyden update needs a step of at least this fraction of ``FD_STEP`` in some parameter. The float32 simulated
-#: reading moves by a few 1e-4 of itself between nearby viscosities for no physical reason, so a secant over a
-#: shorter step is mostly that noise: on a 3 Pa·s lab fluid d ln p / d ln η over steps of 6.4e-4, 2e-3 and 0.01 in
-#: ln η is 0.62, 1.11 and 0.915 against 0.92 by central differences (``scripts/secant_noise.py``); a fit whose
-#: last secant came from a step of 6.4e-4 gave an interval 2x too narrow.
+#: A Broyden update needs a step of at least this fraction of ``FD_STEP`` in some parameter. The simulated reading
+#: moves by a few 1e-4 of itself between nearby viscosities for no physical reason (not float32 round-off: the two
+#: precisions agree to 1e-5), so a secant over a shorter step is mostly that noise: on a 3 Pa·s lab fluid
+#: d ln p / d ln η over steps of 6.4e-4, 2e-3 and 0.01 in ln η is 0.29, 0.64 and 0.845 against 0.875 by central
+#: differences (``scripts/secant_noise.py``, docs/accuracy.md); a fit whose last secant came from a step of 6.4e-4
+#: gave an interval 2x too narrow.
 SECANT_FRACTION = 0.2
 
 
