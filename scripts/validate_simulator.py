@@ -1,6 +1,6 @@
 """Compare the simulator with closed-form solutions and print a markdown table (docs/validation.md).
 
-    python scripts/validate_simulator.py [--checks couette power_law translate translate_viscosity rest3d]
+    python scripts/validate_simulator.py [--checks couette power_law translate translate_viscosity convergence rest3d]
         [--rest-time 8]
 
 Checks:
@@ -12,6 +12,7 @@ Checks:
   4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)], at two sound speeds.
 - translate_viscosity: the translating rod at c = 2 m/s at mu = 1 and 0.2 Pa s on 2.5 and 2 mm cells: whether
   the drag's excess over the exact one scales with the viscosity (not run by default).
+- convergence: the Newtonian and power-law Couette checks on 5, 2.5, 2 and 1.6 mm cells (not run by default).
 - rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): the fluid's volume by its particles'
   J (sum J V0), the height of its centre of mass (at rest neither may change), and the vertical force against
   rho g V_immersed.
@@ -107,6 +108,8 @@ def main() -> None:
         "translate": lambda: [translating(0.0025, 2.0), translating(0.0025, 0.5)],
         "translate_viscosity": lambda: [translating(dx, 2.0, mu) for dx in (0.0025, 0.002) for mu in (1.0, 0.2)],
         "power_law": lambda: [power_law_couette(0.0025, 2.0)],
+        "convergence": lambda: [check(dx, 2.0) for dx in (0.005, 0.0025, 0.002, 0.0016)
+                                for check in (couette, power_law_couette)],
         "rest3d": lambda: rest3d(args.rest_time),
     }
     for name in args.checks:

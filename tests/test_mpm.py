@@ -135,8 +135,8 @@ def test_newtonian_couette_torque_2d():
 
 @pytest.mark.parametrize("dx", [
     pytest.param(0.0025, marks=pytest.mark.xfail(
-        strict=True, reason="known open defect: 6.7 % high on 2.5 mm cells, steady from 0.5 s on; 1.4 % on 2 mm and "
-        "0.6 % on 1.6 mm cells (docs/validation.md)")),
+        strict=True, reason="known open defect: 6.7 % high on 2.5 mm cells; 1.4 % on 2 mm and 0.6 % on 1.6 mm cells "
+        "(docs/validation.md)")),
     0.002,
 ])
 def test_power_law_couette_torque_2d(dx):
