@@ -45,7 +45,7 @@ import torch
 SCENES = {
     "paper3d": dict(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45, dt=1e-3, settle_time=0.3),
     "fine3d": dict(dim=3, dx=0.005, sound_speed=10.0, settle_time=0.3),
-    "slice2d": dict(dim=2, dx=0.0025, sound_speed=2.0),
+    "slice2d": dict(dim=2, dx=0.0025, sound_speed=1.0),
 }
 HORIZON = 8000  # steps: the paper's 8 s recording at 1 ms
 

@@ -3,14 +3,24 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import torch
+from omegaconf import OmegaConf
 
+from diffstir.mpm import SimConfig
 from diffstir.rig import Rig
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 PAPER_RIG = Rig()
+
+
+def fitting_default() -> SimConfig:
+    """The simulation the fit ends on (`conf/sim/slice2d.yaml`): the closed-form checks hold it to its word."""
+    fields = OmegaConf.to_container(OmegaConf.load(Path(__file__).resolve().parents[1] / "conf/sim/slice2d.yaml"))
+    fields.pop("_target_")
+    return SimConfig(**fields)
 
 
 def couette_torque_newtonian(mu: float, omega: float, a: float, b: float, length: float = 1.0) -> float:

@@ -11,10 +11,11 @@ from diffstir.mpm import Corotated, SimConfig, StirringSimulator
 from diffstir.rheology import Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw
 from diffstir.rig import Rig
 from diffstir.trajectory import circle, spin, stationary, translate
-from problems import couette_torque_newtonian, couette_torque_power_law, translating_rod_force
+from problems import couette_torque_newtonian, couette_torque_power_law, fitting_default, translating_rod_force
 
 F64 = dict(dtype=torch.float64)
 TINY = SimConfig(dim=2, dx=0.005, sound_speed=2.0, dtype="float64", dt=1e-3, checkpoint_every=7)
+SLICE = fitting_default()  # 2-D, 2.5 mm cells, c = 1 m/s
 
 LAWS = [
     Newtonian(eta=0.5, **F64),
@@ -123,10 +124,10 @@ def test_float32_gradient_agrees_with_float64():
 
 def test_newtonian_couette_torque_2d():
     """Rod spinning at the cup's centre, Stokes regime (Re = ρΩa(b−a)/μ = 0.75): the steady torque per unit
-    length matches 4πμΩa²b²/(b²−a²) within 5 % at dx = 2.5 mm (the rod is 10 cells across)."""
+    length matches 4πμΩa²b²/(b²−a²) within 5 % on the fitting default (2.5 mm cells: the rod is 10 across)."""
     mu, omega = 1.0, 2.0
     rig = Rig()
-    sim = StirringSimulator(Newtonian(eta=mu), rig, SimConfig(dim=2, dx=0.0025, sound_speed=2.0), density=1000.0)
+    sim = StirringSimulator(Newtonian(eta=mu), rig, SLICE, density=1000.0)
     with torch.no_grad():
         result = sim(spin(omega, duration=0.6, ramp_time=0.1))
     steady = -result.torque[int(0.7 * len(result.torque)):].mean().item()
@@ -135,7 +136,7 @@ def test_newtonian_couette_torque_2d():
 
 @pytest.mark.parametrize("dx", [
     pytest.param(0.0025, marks=pytest.mark.xfail(
-        strict=True, reason="known open defect: 6.7 % high on 2.5 mm cells; 1.4 % on 2 mm and 0.6 % on 1.6 mm cells "
+        strict=True, reason="known open defect: 5.8 % high on 2.5 mm cells; 1.4 % on 2 mm and 0.6 % on 1.6 mm cells "
         "(docs/validation.md)")),
     0.002,
 ])
@@ -146,7 +147,7 @@ def test_power_law_couette_torque_2d(dx):
     slowest shear rate, 0.06 /s at the cup's wall, stays above the law's regularisation rate 0.01 /s."""
     k, n, omega = 1.0, 0.6, 1.0
     rig = Rig()
-    sim = StirringSimulator(PowerLaw(k=k, n=n), rig, SimConfig(dim=2, dx=dx, sound_speed=2.0), density=1000.0)
+    sim = StirringSimulator(PowerLaw(k=k, n=n), rig, SLICE.replace(dx=dx), density=1000.0)
     with torch.no_grad():
         result = sim(spin(omega, duration=0.6, ramp_time=0.1))
     steady = -result.torque[int(0.7 * len(result.torque)):].mean().item()
@@ -161,7 +162,7 @@ def test_float32_and_float64_simulate_the_same_cup():
     runs = []
     for dtype in ("float64", "float32"):
         sim = StirringSimulator(Newtonian(eta=3.0, dtype=getattr(torch, dtype)), Rig(),
-                                SimConfig(dim=2, dx=0.0025, sound_speed=2.0, dtype=dtype), density=1000.0)
+                                SLICE.replace(dtype=dtype), density=1000.0)
         with torch.no_grad():
             runs.append((sim.scene.cup_band.target, sim(trajectory).force.double()))
     torch.testing.assert_close(runs[1][0], runs[0][0], rtol=0, atol=0)
@@ -169,13 +170,16 @@ def test_float32_and_float64_simulate_the_same_cup():
     assert (runs[1][1] - runs[0][1]).norm(dim=1).max() < 1e-4 * scale
 
 
-@pytest.mark.xfail(strict=True, reason="known open defect: next to the rod the particles' J accumulates divergence "
-                   "the grid cannot resolve, and its pressure adds drag in proportion to the bulk modulus "
-                   "(docs/validation.md, scripts/volume_rate_study.py)")
-def test_translating_rod_drag_2d():
-    mu, speed = 1.0, 1e-3
+@pytest.mark.parametrize("mu", [1.0, pytest.param(0.2, marks=pytest.mark.xfail(
+    strict=True, reason="known open defect: 34 % high. Next to the rod the particles' J accumulates divergence the "
+    "grid cannot resolve, and its pressure adds drag in proportion to the bulk modulus over the viscosity "
+    "(docs/validation.md, scripts/volume_rate_study.py)"))])
+def test_translating_rod_drag_2d(mu):
+    """Rod translating at U = 1 mm/s at the cup's centre, Stokes regime (Re = ρUa/μ ≤ 0.025): the steady drag per
+    unit length matches 4πμU / [ln(b/a) − (b² − a²)/(b² + a²)] within 5 % on the fitting default."""
+    speed = 1e-3
     rig = Rig()
-    sim = StirringSimulator(Newtonian(eta=mu), rig, SimConfig(dim=2, dx=0.0025, sound_speed=2.0), density=1000.0)
+    sim = StirringSimulator(Newtonian(eta=mu), rig, SLICE, density=1000.0)
     with torch.no_grad():
         result = sim(translate((speed, 0.0), duration=1.0, start=(-0.5e-3, 0.0)))
     steady = -result.force[int(0.7 * len(result.force)):, 0].mean().item()
@@ -184,7 +188,7 @@ def test_translating_rod_drag_2d():
 
 def test_time_step_obeys_acoustic_and_viscous_limits():
     rig = Rig()
-    cfg = SimConfig(dim=2, dx=0.0025, sound_speed=2.0)
+    cfg = SLICE
     trajectory = circle(radius=0.015, speed=0.1, duration=1.0)
     u_max = trajectory.max_speed(rig.rod.radius)
     thin = StirringSimulator(Newtonian(eta=0.01), rig, cfg).time_step(trajectory)
