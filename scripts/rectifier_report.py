@@ -1,8 +1,10 @@
 """The rectifier's results for docs/rectifier.md: held-out errors in the paper's Table V format, an ablation of
-inputs and sizes, the refinement on pairs with effects it was not trained on, and a refined-versus-reference plot.
+inputs, sizes and the residual form, the refinement on pairs with effects it was not trained on, and a
+refined-versus-reference plot.
 
-    python scripts/rectifier_report.py --unseen outputs/pairs-unseen-sensor/pairs.jsonl \
-        outputs/pairs-unseen-physics/pairs.jsonl --figure docs/figures/rectifier.png
+    python scripts/rectifier_report.py --unseen outputs/pairs-unseen-sensor-c1/pairs.jsonl \
+        outputs/pairs-unseen-physics-c1/pairs.jsonl --figure docs/figures/rectifier.png
+    python scripts/rectifier_report.py --seeds 1 --near 0.047 0.63   # what the pairs say near one estimate
 
 Every variant of the ablation is trained by ``diffstir.rectifier.training.train`` on the same fluid split as the
 shipped checkpoint (seeds 0, 1, 2), and scored on the same held-out fluids.
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import warnings
 from pathlib import Path
 
@@ -29,6 +32,9 @@ VARIANTS = {
     "3-8-1 (speed, η_p, ρ)": dict(inputs=["mean_stirring_speed", "preliminary_viscosity", "density_estimate"],
                                   hidden=[8]),
     "2-32-32-1 (speed, η_p)": dict(inputs=["mean_stirring_speed", "preliminary_viscosity"], hidden=[32, 32]),
+    "2-8-1 residual (speed, η_p)": dict(inputs=["mean_stirring_speed", "preliminary_viscosity"], hidden=[8],
+                                        residual=True),
+    "1-8-1 residual (η_p only)": dict(inputs=["preliminary_viscosity"], hidden=[8], residual=True),
 }
 
 
@@ -59,6 +65,9 @@ def main() -> None:
     parser.add_argument("--figure", default=None, help="where to save the refined-versus-reference plot")
     parser.add_argument("--json", default=None, help="where to save every number as JSON")
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--near", type=float, nargs=2, metavar=("SPEED", "ETA"), default=None,
+                        help="also print reference / preliminary by law over the resolving pairs near this mean "
+                             "stirring speed [m/s] and preliminary viscosity [Pa s] (within a factor 1.3 and 2)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore", ".*does not have many workers.*")
     torch.set_num_threads(1)
@@ -89,7 +98,7 @@ def main() -> None:
         for seed in range(args.seeds):
             L.seed_everything(seed, verbose=False)
             module, _ = train(variant_data, hidden=variant["hidden"], learning_rate=train_cfg["learning_rate"],
-                              epochs=train_cfg["epochs"])
+                              epochs=train_cfg["epochs"], residual=variant.get("residual", False))
             scores.append(evaluate(module.rectifier, variant_data.test)["refined"])
         results["ablation"][name] = scores
         stat = {k: (np.mean([s[k] for s in scores]), np.std([s[k] for s in scores]))
@@ -97,6 +106,17 @@ def main() -> None:
         print(f"| {name} | {stat['mae_mpas'][0]:.1f} ± {stat['mae_mpas'][1]:.1f} | {stat['rmse_mpas'][0]:.1f} ± "
               f"{stat['rmse_mpas'][1]:.1f} | {100 * stat['median_relative'][0]:.1f} ± "
               f"{100 * stat['median_relative'][1]:.1f} |")
+
+    if args.near:
+        speed, eta = args.near
+        near = [p for p in data.all_pairs if p["resolves"] and abs(math.log(p["mean_stirring_speed"] / speed)) <=
+                math.log(1.3) and abs(math.log(p["preliminary_viscosity"] / eta)) <= math.log(2.0)]
+        print(f"\n## Pairs near U = {speed:g} m/s, η_p = {eta:g} Pa·s ({len(near)} resolving pairs, all splits)\n")
+        print("| law | pairs | median η_ref / η_p |\n|---|---|---|")
+        for law in sorted({p["law"] for p in near}):
+            ratios = [p["reference_viscosity"] / p["preliminary_viscosity"] for p in near if p["law"] == law]
+            print(f"| {law} | {len(ratios)} | {np.median(ratios):.2f} |")
+        results["near"] = {"speed": speed, "eta": eta, "pairs": len(near)}
 
     if args.unseen:
         print("\n## Effects the rectifier was not trained on (shipped checkpoint)\n")

@@ -153,6 +153,27 @@ def test_failing_fluids_are_retried_recorded_and_reported(shard, tmp_path, monke
     assert manifest["shards"][0]["missing_fluids"] == 2
 
 
+def test_a_design_that_only_draws_more_fluids_reuses_the_groups(shard, tmp_path, monkeypatch):
+    # the ladder and γ̇_eff depend on the programme, density, sensor and fit window, not on how many fluids or
+    # sensor models a shard draws: five times the fluids must not simulate the group again
+    design, out, _ = shard
+    (tmp_path / "shards").mkdir()
+    group_file = tmp_path / "shards" / "shard-0000.group.json"
+    group_file.write_text((out / "shards" / "shard-0000.group.json").read_text())
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("the group was simulated again")
+
+    monkeypatch.setattr(pairs_module.ViscosityLadder, "simulate", no_simulation)
+    monkeypatch.setattr(pairs_module, "effective_shear_rate", no_simulation)
+    monkeypatch.setattr(pairs_module, "simulate_truth", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("stop")))
+    more = small_design(fluids_per_shard=4, sensors_per_fluid=1)
+    assert more.digest() != design.digest() and more.group_digest() == design.group_digest()
+    run_shard(more, 0, tmp_path, truth_config=FAST, estimator_config=FAST, retries=0, log=lambda _: None)
+    assert json.loads(group_file.read_text())["group_digest"] == design.group_digest()
+    assert small_design(duration=1.5).group_digest() != design.group_digest()
+
+
 def test_a_shard_of_another_design_is_refused(shard):
     design, out, _ = shard
     with pytest.raises(ValueError, match="another pair design"):
@@ -182,15 +203,16 @@ def test_split_is_by_fluid():
     assert [len(i) for i in ids] == [10, 5, 35] and len(test) + len(val) + len(train) == len(pairs)
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
+@pytest.fixture(scope="module", params=[False, True], ids=["absolute", "residual"])
+def trained(tmp_path_factory, request):
     import lightning as L
 
     path = tmp_path_factory.mktemp("rect") / "pairs.jsonl"
     path.write_text("".join(json.dumps(p) + "\n" for p in synthetic_pairs()))
     L.seed_everything(0)
     data = PairData(path, ["mean_stirring_speed", "preliminary_viscosity"], batch_size=32)
-    module, trainer = train(data, epochs=40, metadata={"estimator": {"dim": 2, "dx": 0.005, "sound_speed": 1.0}})
+    module, trainer = train(data, epochs=40, metadata={"estimator": {"dim": 2, "dx": 0.005, "sound_speed": 1.0}},
+                            residual=request.param)
     ckpt = path.with_name("rectifier.ckpt")
     trainer.save_checkpoint(ckpt)
     return data, module, ckpt
@@ -207,6 +229,7 @@ def test_the_paper_network_learns_a_systematic_gap_on_unseen_fluids(trained):
 def test_a_checkpoint_refines_and_refuses_to_extrapolate(trained):
     data, module, ckpt = trained
     rectifier, metadata = load_rectifier(ckpt)
+    assert rectifier.residual == module.rectifier.residual
     estimator = {"name": "newtonian_ladder", "dim": 2, "dx": 0.005, "sound_speed": 1.0}
     preliminary = {"viscosity": 0.6 * 0.5**1.1, "mean_stirring_speed": 0.05, "resolves": True,
                    "estimator": estimator}
@@ -218,6 +241,20 @@ def test_a_checkpoint_refines_and_refuses_to_extrapolate(trained):
     assert other["value"] is None and "dx=0.01" in other["note"]
     thin = refine(rectifier, metadata, dict(preliminary, resolves=False), 1000.0, str(ckpt))
     assert thin["value"] is None and "not identifiable" in thin["note"]
+
+
+def test_a_residual_rectifier_corrects_the_preliminary_viscosity():
+    # ln η_refined = ln η_p + μ_y + σ_y · MLP(z): with the MLP's output zero, the refined viscosity is the
+    # preliminary one times the training set's geometric-mean correction, whatever the other inputs
+    rectifier = Rectifier(residual=True)
+    x = torch.tensor([[0.05, 0.2], [0.1, 0.5], [0.04, 2.0]])
+    rectifier.fit_scaling(x, 1.25 * x[:, 1])
+    torch.nn.init.zeros_(rectifier.mlp[-1].weight)
+    torch.nn.init.zeros_(rectifier.mlp[-1].bias)
+    probe = torch.tensor([[0.07, 0.01], [0.12, 7.0]])
+    torch.testing.assert_close(rectifier(probe), 1.25 * probe[:, 1])
+    with pytest.raises(ValueError, match="lack 'preliminary_viscosity'"):
+        Rectifier(inputs=("mean_stirring_speed",), residual=True)
 
 
 def test_rectifier_rejects_unknown_inputs_and_non_positive_values():

@@ -49,6 +49,7 @@ def main(cfg: DictConfig) -> None:
                                 ("design_digest", "pairs", "fluids", "complete", "sha256")}
     started = time.perf_counter()
     module, trainer = train(data, hidden=list(cfg.model.hidden), activation=cfg.model.activation,
+                            residual=bool(cfg.model.residual),
                             learning_rate=float(cfg.train.learning_rate), epochs=int(cfg.train.epochs),
                             early_stopping_patience=int(cfg.train.patience) if cfg.train.early_stopping else None,
                             accelerator=cfg.device, logger=TensorBoardLogger(str(out), name="tensorboard"),

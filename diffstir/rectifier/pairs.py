@@ -125,7 +125,20 @@ class PairDesign:
 
     def digest(self) -> str:
         """A short hash of the design: shards written under another design are refused."""
-        return hashlib.sha256(json.dumps(_plain(asdict(self)), sort_keys=True).encode()).hexdigest()[:16]
+        return _digest(asdict(self))
+
+    def group_digest(self) -> str:
+        """A short hash of the fields a group's simulations depend on (``GROUP_FIELDS``): a design that draws more
+        or other fluids or sensors reuses the groups of one that did not."""
+        return _digest({k: v for k, v in asdict(self).items() if k in GROUP_FIELDS})
+
+
+#: The design's fields that a group's ladder and effective shear rates depend on.
+GROUP_FIELDS = ("programmes", "densities", "duration", "ramp_time", "sensor", "physics", "window", "holdout_fraction")
+
+
+def _digest(fields: Mapping) -> str:
+    return hashlib.sha256(json.dumps(_plain(fields), sort_keys=True).encode()).hexdigest()[:16]
 
 
 def draw_fluid(rng: np.random.Generator, design: PairDesign, shear_rate_of, density: float) -> tuple[Fluid, float]:
@@ -257,7 +270,12 @@ def run_shard(design: PairDesign, shard: int, out: str | Path, *, truth_config: 
 def _group(design, shard, path, trajectory, density, physics, estimator_config, log) -> dict:
     """The group's ladder and effective shear rates, simulated once and kept in ``path``."""
     group = json.loads(path.read_text()) if path.exists() else {}
-    if group.get("design") == design.digest() and group.get("shear_rate_method") == SHEAR_RATE_METHOD:
+    # groups written before group digests existed carry the whole design's digest
+    same_group = group.get("group_digest", group.get("design")) in (design.group_digest(), design.digest())
+    if same_group and group.get("shear_rate_method") == SHEAR_RATE_METHOD:
+        if group.get("group_digest") != design.group_digest():
+            group["group_digest"] = design.group_digest()
+            path.write_text(json.dumps(group))
         return group
     started = time.perf_counter()
     # the group's sampling from a silent recording of the same path (no simulation): mid-step force times of any
@@ -267,12 +285,12 @@ def _group(design, shard, path, trajectory, density, physics, estimator_config, 
                              Rig(), estimator_config, physics, times, np.zeros((times.size, 2)), 1e-4, 0, [], True)
     template = read_truth(silent, SensorModel(**_fixed(design.sensor))).recording
     problem = _problem(template, estimator_config, density, design)
-    if group.get("design") == design.digest():  # measured before γ̇_eff's definition changed: keep the ladder
+    if same_group:  # measured before γ̇_eff's definition changed: keep the ladder
         ladder = ViscosityLadder(tuple(group["ladder"]["viscosities"]), tuple(group["ladder"]["mean_abs"]))
     else:
         ladder = ViscosityLadder.simulate(problem)
     rates = {str(eta): effective_shear_rate(problem, eta) for eta in RATE_PROBES}
-    group = {"design": design.digest(), "shard": shard, "density": density,
+    group = {"design": design.digest(), "group_digest": design.group_digest(), "shard": shard, "density": density,
              "programme": dict(design.group(shard)[0]),
              "ladder": {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs)},
              "effective_shear_rates": rates, "shear_rate_method": SHEAR_RATE_METHOD,

@@ -91,15 +91,14 @@ class RectifierModule(L.LightningModule):
 
     def __init__(self, inputs: Sequence[str] = ("mean_stirring_speed", "preliminary_viscosity"),
                  hidden: Sequence[int] = (8,), activation: str = "tanh", learning_rate: float = 0.01,
-                 metadata: dict | None = None):
+                 metadata: dict | None = None, residual: bool = False):
         super().__init__()
         self.save_hyperparameters()
-        self.rectifier = Rectifier(inputs, hidden, activation)
+        self.rectifier = Rectifier(inputs, hidden, activation, residual)
 
     def _loss(self, batch) -> torch.Tensor:
         x, y = batch
-        target = (y.log() - self.rectifier.y_mean) / self.rectifier.y_std
-        return torch.nn.functional.mse_loss(self.rectifier.log_output(x), target)
+        return torch.nn.functional.mse_loss(self.rectifier.log_output(x), self.rectifier.standardised_target(x, y))
 
     def training_step(self, batch, batch_idx):
         loss = self._loss(batch)
@@ -136,12 +135,12 @@ def evaluate(rectifier: Rectifier, pairs: Sequence[dict]) -> dict:
 
 def train(data: PairData, *, hidden: Sequence[int] = (8,), activation: str = "tanh", learning_rate: float = 0.01,
           epochs: int = 50, early_stopping_patience: int | None = None, accelerator: str = "cpu",
-          logger=False, metadata: dict | None = None) -> tuple[RectifierModule, L.Trainer]:
+          logger=False, metadata: dict | None = None, residual: bool = False) -> tuple[RectifierModule, L.Trainer]:
     """Train a rectifier on ``data``'s training fluids (standardised on them), validating on its validation
     fluids; early stopping on ``val_loss`` when ``early_stopping_patience`` is given."""
     from lightning.pytorch.callbacks import EarlyStopping
 
-    module = RectifierModule(data.inputs, hidden, activation, learning_rate, metadata=metadata)
+    module = RectifierModule(data.inputs, hidden, activation, learning_rate, metadata=metadata, residual=residual)
     module.rectifier.fit_scaling(*tensors(data.train, module.rectifier.inputs))
     callbacks = [EarlyStopping("val_loss", patience=early_stopping_patience)] if early_stopping_patience else []
     trainer = L.Trainer(max_epochs=epochs, accelerator=accelerator, devices=1, logger=logger, callbacks=callbacks,
