@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from diffstir.identify import FitModel, identify
-from diffstir.identify.initial import YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models
+from diffstir.identify.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
+                                      newtonian_embedding)
 from diffstir.identify.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
 from diffstir.identify.problem import StirProblem, Windows, rig_from_recording
 from diffstir.identify.selection import bic, select
@@ -176,6 +177,18 @@ def test_yield_stress_laws_start_as_a_paste_and_as_a_liquid():
     for m in starts:  # every start reads like the Newtonian fit at the effective shear rate
         assert float(m.material(torch.tensor([rate], dtype=torch.float64)).detach()) == pytest.approx(eta_n, rel=1e-5)
     assert len(initial_models("carreau", eta_n, rate)) == 1
+
+
+@pytest.mark.parametrize("name", ["power_law", "carreau", "cross", "herschel_bulkley", "bingham"])
+def test_every_law_has_a_newtonian_start_over_the_stirs_shear_rates(name):
+    # the fine stage also starts each law at the fine Newtonian fit, so a law that contains the Newtonian one
+    # cannot end above it: its viscosity must be η_N within 0.1 % at γ̇_eff and 1 % over a decade either side
+    eta_n, rate = 0.66, 4.2  # Pa s, 1/s
+    law = newtonian_embedding(name, eta_n, rate).material
+    rates = torch.tensor([rate / 10, rate, 10 * rate], dtype=torch.float64)
+    eta = law(rates).detach().numpy()
+    assert eta[1] == pytest.approx(eta_n, rel=1e-3)
+    assert eta == pytest.approx(eta_n, rel=1e-2)
 
 
 def test_laplace_covariance_is_the_least_squares_covariance_for_white_noise():

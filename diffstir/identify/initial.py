@@ -155,6 +155,23 @@ def initial_model(name: str, eta_n: float, shear_rate: float, dt: float | None =
     return FitModel.named(name, **within_bounds(name, guesses[name]))
 
 
+def newtonian_embedding(name: str, eta_n: float, shear_rate: float) -> FitModel:
+    """The law ``name`` as the Newtonian fluid ``eta_n`` [Pa·s]: exactly (an index n = 1) or, where a bound keeps a
+    parameter off zero, within 0.1 % at ``shear_rate`` [1/s] (a yield stress carrying 0.1 % of the stress, Cross's
+    λγ̇ = 1e-3). A law that contains the Newtonian one, started here, cannot end above the Newtonian fit's loss."""
+    g = shear_rate
+    embeddings = {
+        "power_law": dict(k=eta_n, n=1.0),
+        "carreau": dict(eta0=eta_n, eta_inf=eta_n * 1e-3, lam=1.0 / g, n=1.0),
+        "cross": dict(eta0=eta_n, eta_inf=eta_n * 1e-3, lam=1e-3 / g, n=1.0),
+        "herschel_bulkley": dict(tau_y=1e-3 * eta_n * g, k=(1.0 - 1e-3) * eta_n, n=1.0),
+        "bingham": dict(tau_y=1e-3 * eta_n * g, eta_p=(1.0 - 1e-3) * eta_n),
+    }
+    if name not in embeddings:
+        raise ValueError(f"model {name!r} has no Newtonian embedding; choose from {sorted(embeddings)}")
+    return FitModel.named(name, **within_bounds(name, embeddings[name]))
+
+
 def initial_models(name: str, eta_n: float, shear_rate: float, dt: float | None = None) -> list[FitModel]:
     """The starts :func:`initial_model` offers for ``name``: one per ``YIELD_SHARES`` for a yield-stress law,
     one otherwise."""
