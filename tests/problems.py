@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import torch
+from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from diffstir.mpm import SimConfig
@@ -18,9 +19,7 @@ PAPER_RIG = Rig()
 
 def fitting_default() -> SimConfig:
     """The simulation the fit ends on (`conf/sim/slice2d.yaml`): the closed-form checks hold it to its word."""
-    fields = OmegaConf.to_container(OmegaConf.load(Path(__file__).resolve().parents[1] / "conf/sim/slice2d.yaml"))
-    fields.pop("_target_")
-    return SimConfig(**fields)
+    return instantiate(OmegaConf.load(Path(__file__).resolve().parents[1] / "conf/sim/slice2d.yaml"))
 
 
 def couette_torque_newtonian(mu: float, omega: float, a: float, b: float, length: float = 1.0) -> float:
