@@ -164,9 +164,12 @@ def test_a_design_that_only_draws_more_fluids_reuses_the_groups(shard, tmp_path,
     def no_simulation(*args, **kwargs):
         raise AssertionError("the group was simulated again")
 
+    def stop_before_the_truth(*args, **kwargs):  # the fluids' truth simulations are not what this test is about
+        raise RuntimeError("stopped before the truth simulation")
+
     monkeypatch.setattr(pairs_module.ViscosityLadder, "simulate", no_simulation)
     monkeypatch.setattr(pairs_module, "effective_shear_rate", no_simulation)
-    monkeypatch.setattr(pairs_module, "simulate_truth", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("stop")))
+    monkeypatch.setattr(pairs_module, "simulate_truth", stop_before_the_truth)
     more = small_design(fluids_per_shard=4, sensors_per_fluid=1)
     assert more.digest() != design.digest() and more.group_digest() == design.group_digest()
     run_shard(more, 0, tmp_path, truth_config=FAST, estimator_config=FAST, retries=0, log=lambda _: None)
