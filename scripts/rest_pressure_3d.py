@@ -91,7 +91,8 @@ def main() -> None:
     state = result.state
     pose = sim._poses(trajectory, np.array([trajectory.t[-1] - dt, trajectory.t[-1]]))[0]
     buffer, _ = p2g(sim.scene, state, dt)
-    v_new, force, _ = grid_update(sim.scene, sim.material, buffer, pose, dt)
+    update = grid_update(sim.scene, sim.material, buffer, pose, dt)
+    v_new, force = update.velocity, update.force
     scene, d = sim.scene, sim.scene.dim
     window = scene.rod_window.nodes(scene.grid, pose.axis)
     nodes = scene.nodes[window]

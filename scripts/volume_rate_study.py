@@ -25,7 +25,9 @@ Parts:
   centre of mass, after / before (~4 minutes each).
 
 The projected and relaxed rates are study variants installed here with ``unittest.mock.patch``, not options of
-the simulator: on the measured evidence neither is yet a cure (docs/validation.md).
+the simulator: on the measured evidence neither was a cure (docs/validation.md). The study runs the numerics it was
+made for (``FORMER``: APIC transfers, each particle's own J, no settling); the simulator's cure since 2026-11-24 is
+the relaxation of J towards the packing the grid measures (``diffstir.mpm.packing``).
 """
 
 from __future__ import annotations
@@ -70,16 +72,16 @@ def project(st, values: torch.Tensor, num_nodes: int) -> torch.Tensor:
     return ((numerator / denominator.clamp_min(1e-12))[st.index] * weight).sum(1)
 
 
-def projected_g2p(scene, st, v_grid, state, dt):
+def projected_g2p(scene, st, v_grid, state, dt, *rest):
     """``step.g2p`` with J advanced by the grid-projected divergence P(tr C) instead of the particle's own."""
-    new = PARTICLE_G2P(scene, st, v_grid, state, dt)
+    new = PARTICLE_G2P(scene, st, v_grid, state, dt, *rest)
     divergence = new.C.diagonal(dim1=-2, dim2=-1).sum(-1)
     return State(x=new.x, v=new.v, C=new.C, J=state.J * (1.0 + dt * project(st, divergence, scene.grid.num_nodes)))
 
 
-def relaxed_g2p(scene, st, v_grid, state, dt):
+def relaxed_g2p(scene, st, v_grid, state, dt, *rest):
     """``step.g2p`` with J, after its own update, relaxed towards P(J) at the rate 1 / ``RELAXATION_TIME``."""
-    new = PARTICLE_G2P(scene, st, v_grid, state, dt)
+    new = PARTICLE_G2P(scene, st, v_grid, state, dt, *rest)
     smooth = project(st, new.J, scene.grid.num_nodes)
     return State(x=new.x, v=new.v, C=new.C, J=new.J + (dt / RELAXATION_TIME) * (smooth - new.J))
 
@@ -94,8 +96,13 @@ def volume_rate(kind: str):
     return mock.patch.object(mpm_step, "g2p", VARIANTS[kind])
 
 
+FORMER = dict(flip=0.0, volume_relaxation=0.0)  # the numerics this study examined
+
+
 def simulator(mu: float, config: SimConfig) -> StirringSimulator:
-    return StirringSimulator(Newtonian(eta=mu), RIG, config, density=1000.0)
+    if config.dim == 2:
+        config = config.replace(settle_time=0.0)
+    return StirringSimulator(Newtonian(eta=mu), RIG, config.replace(**FORMER), density=1000.0)
 
 
 def drag(kind: str, mu: float, sound_speed: float) -> tuple[float, float, float]:

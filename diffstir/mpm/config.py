@@ -19,11 +19,28 @@ class SimConfig:
         particles_per_cell: particles per cell along each axis (the cell holds this to the power ``dim``).
         sound_speed: speed of sound of the weakly compressible fluid [m/s]; the bulk modulus is
             ``density * sound_speed**2``. Keep it at least ten times the fastest flow (Mach < 0.1); in 3-D also high
-            enough that the hydrostatic compression ``density * g * fill_height / bulk_modulus`` stays small.
+            enough that the hydrostatic compression ``density * g * fill_height / bulk_modulus`` stays small. With
+            ``compressibility`` set it is the least sound speed, raised per rollout.
+        compressibility: the largest relative density change δ the stir's pressure may cause, or None to keep
+            ``sound_speed``. Each rollout then uses c = max(sound_speed, sqrt(p / (ρ δ))), with p the larger of the
+            dynamic pressure ρ U² and the viscous pressure of a rod dragged at the cup's centre (its Stokes drag
+            per unit length over its diameter, 2π η U / (a [ln(b/a) − (b² − a²)/(b² + a²)])) at the trajectory's
+            top speed U and the law's viscosity at the shear rate U/a. A viscous stir's pressure, not its Mach
+            number, is what compresses the fluid: at the former 1 m/s a 1 Pa·s stir at 0.1 m/s compressed it by
+            13 % and read 27 % low against an incompressible reference (docs/validation.md).
         cfl: acoustic Courant number, ``dt <= cfl * dx / (sound_speed + max rod speed)``.
         viscous_safety: fraction of the explicit viscous limit ``density * dx**2 / (2 * dim * eta_max)`` used.
         viscosity_cap: the largest apparent viscosity simulated [Pa·s]; a law's viscosity above it is clamped (the
             bi-viscous regularisation of yield-stress plugs), so that its time step stays finite.
+        flip: share of FLIP in the particles' velocity update, v_p ← Σ w v_i + flip (v_p − Σ w v_i^old): the
+            particle keeps the part of its velocity the grid did not see instead of losing it every step. 0 is
+            APIC alone, whose transfers add a numerical viscosity of about 0.016 dx²/Δt (1e-4 m²/s on the fitting
+            default: a 0.2 Pa·s fluid behaved like a 0.3 Pa·s one, and forces grew as Δt shrank;
+            docs/validation.md).
+        volume_relaxation: time [s] over which the particles' volume ratio J relaxes towards the packing the
+            grid measures (``diffstir.mpm.packing``); 0 leaves each particle's J to its own velocity divergence,
+            which drifts. Longer than the acoustic crossing of a particle's stencil, 3 dx / c, so that the packing's
+            noise is not fed into the sound waves, and far shorter than the drift (seconds).
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
@@ -42,9 +59,12 @@ class SimConfig:
     dx: float = 0.005
     particles_per_cell: int = 2
     sound_speed: float = 10.0
+    compressibility: float | None = None
     cfl: float = 0.4
     viscous_safety: float = 0.9
     viscosity_cap: float = 20.0
+    flip: float = 0.95
+    volume_relaxation: float = 0.05
     dt_max: float = 1e-3
     dt: float | None = None
     headroom: float = 0.02
@@ -69,6 +89,14 @@ class SimConfig:
             raise ValueError(f"sim.dt = {self.dt!r}; expected a positive time step in s, or None")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"sim.dtype = {self.dtype!r}; expected 'float32' or 'float64'")
+        if not 0.0 <= self.flip <= 1.0:
+            raise ValueError(f"sim.flip = {self.flip!r}; expected a share between 0 (APIC) and 1 (FLIP)")
+        if not self.volume_relaxation >= 0:
+            raise ValueError(f"sim.volume_relaxation = {self.volume_relaxation!r}; expected a time >= 0 in s "
+                             "(0: no relaxation)")
+        if self.compressibility is not None and not 0 < self.compressibility < 0.5:
+            raise ValueError(f"sim.compressibility = {self.compressibility!r}; expected a relative density change "
+                             "between 0 and 0.5 (e.g. 0.01), or null to keep sim.sound_speed")
         if self.checkpoint_every < 0:
             raise ValueError(f"sim.checkpoint_every = {self.checkpoint_every}; expected >= 0")
 
@@ -86,3 +114,14 @@ class SimConfig:
     def replace(self, **changes) -> "SimConfig":
         """A copy with ``changes`` applied."""
         return replace(self, **changes)
+
+    def numerics(self) -> dict:
+        """What a simulated force depends on besides the fluid and the stir, for records that must say which
+        simulator made them (a rectifier's training pairs, an identification's preliminary estimate)."""
+        return {k: getattr(self, k) for k in NUMERICS}
+
+
+#: The settings of ``SimConfig.numerics``; records written before 2026-11-24 lack the last three, and had then the
+#: values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound speed).
+NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation")
+FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0}

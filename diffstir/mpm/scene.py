@@ -6,7 +6,7 @@ import hashlib
 import json
 import math
 import os
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
@@ -17,6 +17,7 @@ from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, is_solid,
 from .config import SimConfig
 from .grid import Grid
 from .materials import deviatoric_rate_of_strain
+from .packing import FINE, cup_solid_mass, rod_fill_points
 from .state import State
 from .step import Scene, step
 from .viscous import CellStencil
@@ -47,7 +48,8 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     gravity = torch.zeros(d, dtype=dtype, device=device)
     if d == 3:
         gravity[2] = -rig.gravity
-    cells_volume = (dx / config.particles_per_cell) ** d
+    spacing = dx / config.particles_per_cell
+    cells_volume = spacing ** d
     offsets = grid.stencil_offsets()
     cup_nodes = torch.nonzero(reach).squeeze(1)
     rod = rod_shape(rig.rod, dx)
@@ -55,11 +57,14 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     mass_row[..., d] = density * cells_volume
     # a particle's base node (floor(x/dx − 1/2)) and its stencil's last node (+2) must lie on the grid
     highest = grid.origin + (torch.tensor(shape, dtype=dtype, device=device) - 1.5001) * dx
+    bounds = torch.stack([grid.origin + 0.5001 * dx, highest])
+    offset_index = offsets @ grid.strides()
+    rod_spacing = spacing / FINE
     return Scene(
-        grid=grid, offset_index=offsets @ grid.strides(),
+        grid=grid, offset_index=offset_index,
         stencil_points=torch.cat([offsets, torch.ones(len(offsets), 1, dtype=torch.int64, device=device)], 1).to(dtype),
         eye=torch.eye(d, dtype=dtype, device=device), mass_row=mass_row, cells=CellStencil.of(grid),
-        particle_bounds=torch.stack([grid.origin + 0.5 * dx, highest]),
+        particle_bounds=bounds,
         strides=grid.strides(), nodes=nodes, cup=cup, cup_phi=cup_phi,
         cup_band=ghost_band(grid, cup_nodes, nodes[cup_nodes], cup_phi[cup_nodes], cup_normal[cup_nodes],
                             slip=cup.wall == "slip"),
@@ -68,6 +73,11 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
         particle_mass=density * cells_volume, particle_volume=cells_volume, node_mass=density * dx**d,
         bulk_modulus=bulk_modulus,
         gravity=gravity, viscosity_cap=config.viscosity_cap,
+        flip=config.flip, relaxation_rate=1.0 / config.volume_relaxation if config.volume_relaxation > 0 else 0.0,
+        solid_mass=cup_solid_mass(grid, cup, spacing, density, offset_index, grid.strides(), bounds),
+        rod_points=rod_fill_points(rod, dx, rod_spacing, rig.rod.immersion_depth + config.headroom + 2 * dx, d,
+                                   dtype, device),
+        rod_point_mass=density * rod_spacing ** d,
     )
 
 
@@ -103,15 +113,17 @@ class _SettlingFluid(nn.Module):
 
 def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pose: RodPose,
                   cache_dir: str | Path | None = None) -> State:
-    """The fluid at rest around a still rod: seeded, then left to settle under gravity (3-D) with damping.
+    """The fluid at rest around a still rod: seeded, then left to settle with damping, under gravity in 3-D and, in
+    both, until its packing around the rod (``packing``) is in equilibrium.
 
     The result depends only on the rig, the resolution, the density and the rod's starting pose, not on the
     rheology, so it is computed once and cached on disk (``cache_dir``, default ``$DIFFSTIR_CACHE_DIR`` or
     ``~/.cache/diffstir``).
     """
     state = seed_particles(scene, rig, config, pose)
-    if scene.dim == 2 or config.settle_time <= 0:
+    if config.settle_time <= 0:
         return state
+    scene = replace(scene, bulk_modulus=density * config.sound_speed**2)  # a rollout may have raised it
     key = _settle_key(rig, config, density, pose)
     root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
     path = root / "settled" / f"{key}.pt"
@@ -141,8 +153,9 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
 
 def _settle_key(rig: Rig, config: SimConfig, density: float, pose: RodPose) -> str:
     fields = {k: v for k, v in asdict(config).items() if k in ("dim", "dx", "particles_per_cell", "sound_speed", "cfl",
-                                                                 "headroom", "settle_time", "dtype")}
-    payload = json.dumps({"rig": asdict(rig), "sim": fields, "density": density, "version": 1,
+                                                                 "headroom", "settle_time", "dtype", "flip",
+                                                                 "volume_relaxation")}
+    payload = json.dumps({"rig": asdict(rig), "sim": fields, "density": density, "version": 2,
                           "pose": [round(float(v), 9) for v in (*pose.axis.tolist(), pose.tip, pose.angle)]},
                          sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:20]

@@ -85,16 +85,38 @@ class StirringSimulator(nn.Module):
         """The largest apparent viscosity the simulation resolves [Pa·s] (see ``SimConfig``)."""
         return self.scene.viscosity_cap
 
+    def sound_speed(self, trajectory: Trajectory) -> float:
+        """The rollout's speed of sound c [m/s]: ``config.sound_speed``, raised with ``config.compressibility`` δ to
+        sqrt(p / (ρ δ)), p the larger of the dynamic pressure ρ U² and the viscous pressure of a rod of radius a
+        dragged at U through a cup of radius b, 2π η U / (a [ln(b/a) − (b² − a²)/(b² + a²)]) (its Stokes drag
+        per unit length over its diameter), at the trajectory's top speed U and the viscosity at shear rate U/a."""
+        cfg = self.config
+        if cfg.compressibility is None:
+            return cfg.sound_speed
+        a, b = self.rig.rod.radius, self.rig.cup.radius
+        u = trajectory.max_speed(a)
+        law = getattr(self.material, "law", None)
+        if law is not None:
+            rate = torch.tensor([max(u / a, 1e-6)], dtype=self.config.torch_dtype, device=self.config.torch_device)
+            with torch.no_grad():
+                eta = float(law(rate).clamp(max=self.viscosity_cap)[0])
+        else:
+            eta = min(self.material.max_viscosity(max(u / a, 1e-6)), self.viscosity_cap)
+        viscous = 2 * math.pi * eta * u / (a * (math.log(b / a) - (b**2 - a**2) / (b**2 + a**2)))
+        pressure = max(self.density * u**2, viscous)
+        return max(cfg.sound_speed, math.sqrt(pressure / (self.density * cfg.compressibility)))
+
     def time_step(self, trajectory: Trajectory) -> float:
-        """The explicit step [s]: min of the acoustic limit cfl·dx/(c + u_max), the viscous limit
-        safety·ρ dx²/(2 d η_max) and ``dt_max``, shortened so that it divides the trajectory's duration."""
+        """The explicit step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``),
+        the viscous limit safety·ρ dx²/(2 d η_max) and ``dt_max``, shortened so that it divides the trajectory's
+        duration."""
         cfg = self.config
         if cfg.dt is not None:
             dt = cfg.dt
         else:
             u_max = trajectory.max_speed(self.rig.rod.radius)
             eta_max = min(self.material.max_viscosity(SHEAR_RATE_SCALE * u_max / cfg.dx + 1.0), self.viscosity_cap)
-            dt = min(cfg.cfl * cfg.dx / (cfg.sound_speed + u_max),
+            dt = min(cfg.cfl * cfg.dx / (self.sound_speed(trajectory) + u_max),
                      cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12)), cfg.dt_max)
         steps = max(1, math.ceil(trajectory.duration / dt - 1e-9))
         return trajectory.duration / steps
@@ -117,6 +139,7 @@ class StirringSimulator(nn.Module):
         times = trajectory.t[0] + dt * np.arange(steps + 1)
         poses = self._poses(trajectory, times)
         state = initial if initial is not None else self.initial_state(trajectory)
+        self.scene.bulk_modulus = self.density * self.sound_speed(trajectory) ** 2
         forces, torques, snapshots = [], [], []
         segment = self.config.checkpoint_every or steps
         for start in range(0, steps, segment):

@@ -1,13 +1,15 @@
 """One MLS-MPM step: particle-to-grid, grid update with boundaries, grid-to-particle.
 
-Quadratic B-splines, APIC/MLS transfers (Hu et al. 2018), explicit time integration. The volumetric (pressure)
-stress lives on the particles and enters in ``p2g``; the shear stress of the material is evaluated on the grid, from
-the ghost-extended velocity field, in ``grid_update`` (see ``viscous``).
+Quadratic B-splines, APIC/MLS transfers (Hu et al. 2018) blended with FLIP in the particles' velocity, explicit time
+integration. The volumetric (pressure) stress lives on the particles and enters in ``p2g``; the shear stress of the
+material is evaluated on the grid, from the ghost-extended velocity field, in ``grid_update`` (see ``viscous``); the
+particles' volume ratio relaxes towards the packing the grid measures in ``g2p`` (see ``packing``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -17,6 +19,7 @@ from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow,
                          rod_sdf, rod_velocity)
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
+from .packing import deposit, packed_volume_ratio, place_rod_points
 from .state import State
 from .viscous import CellStencil, cell_any, cell_min, cell_velocity_gradient, nodal_forces
 
@@ -51,6 +54,12 @@ class Scene:
         viscosity_cap: the largest viscosity the explicit step resolves [Pa·s]; above it the fluid is rigid-like.
         rod_slip_length: Navier slip length b of the rod's (no-slip) surface [m]: the fluid slips along it at
             b ∂u_t/∂n; 0 is no-slip (see ``boundaries.ghost_matrix``).
+        flip: share of FLIP in the particles' velocity update [1] (``SimConfig.flip``).
+        relaxation_rate: 1/τ, the rate at which J relaxes towards the grid's packing [1/s]; 0: not at all.
+        solid_mass: the mass the cup's walls and bottom would put on each node if they were fluid at rest [kg]
+            (2-D: [kg/m]), (num_nodes,) (``packing.cup_solid_mass``).
+        rod_points: virtual particles filling the rod near its surface, in the rod's frame [m], (R, d), each of
+            mass ``rod_point_mass`` [kg] (2-D: [kg/m]) (``packing.rod_fill_points``).
     """
 
     grid: Grid
@@ -74,6 +83,11 @@ class Scene:
     bulk_modulus: float
     gravity: Tensor
     viscosity_cap: float
+    flip: float
+    relaxation_rate: float
+    solid_mass: Tensor
+    rod_points: Tensor
+    rod_point_mass: float
     rod_slip_length: float | Tensor = 0.0
 
     @property
@@ -81,8 +95,17 @@ class Scene:
         return self.grid.dim
 
 
+def node_fill(scene: Scene, mass: Tensor, pose: RodPose) -> Tensor:
+    """φ_i = (m_i + m_i^solid) / (ρ dx^d): how full each node is, with the solids counted as resting fluid [1],
+    (num_nodes,), from the particles' node mass ``mass`` [kg] (``packing``)."""
+    rod = deposit(scene.grid, place_rod_points(scene.rod, scene.rod_points, pose), scene.rod_point_mass,
+                  scene.offset_index, scene.strides, scene.particle_bounds)
+    return (mass + scene.solid_mass + rod) / scene.node_mass
+
+
 def p2g(scene: Scene, state: State, dt: float) -> tuple[Tensor, Stencil]:
-    """Scatter particle momentum, with the pressure impulse, and mass to the grid: buffer (num_nodes, d + 1).
+    """Scatter particle momentum, with the pressure impulse, and mass to the grid: buffer (num_nodes, d + 1), and
+    with a FLIP share (``scene.flip`` > 0) the momentum without the impulse in d more columns, (num_nodes, 2d + 1).
 
     The pressure impulse is the MLS-MPM node force −Σ V σ ∇w Δt with ∇w = w (4/dx²)(x_i − x_p), V = J V0 the
     particle's current volume and σ = τ_v(J) I its volumetric stress.
@@ -96,12 +119,17 @@ def p2g(scene: Scene, state: State, dt: float) -> tuple[Tensor, Stencil]:
     affine = grid.dx * (m * state.C - (dt * 4.0 / grid.dx**2) * kirchhoff[:, None, None] * scene.eye)
     b = m * state.v - (affine @ st.frac[:, :, None]).squeeze(-1)
     n, k = st.weight.shape
-    transfer = torch.cat([torch.cat([affine, b[:, :, None]], dim=2).transpose(0, 1),
-                          scene.mass_row.expand(1, n, d + 1)])  # (d + 1, N, d + 1)
-    contrib = (transfer.view(-1, d + 1) @ scene.stencil_points.T).view(d + 1, n, k) * st.weight
-    index = st.index.view(1, -1).expand(d + 1, -1)
-    buffer = torch.zeros(d + 1, grid.num_nodes, dtype=state.x.dtype, device=state.x.device)
-    return buffer.scatter_add(1, index, contrib.view(d + 1, -1)).T.contiguous(), st
+    rows = [torch.cat([affine, b[:, :, None]], dim=2).transpose(0, 1), scene.mass_row.expand(1, n, d + 1)]
+    if scene.flip > 0:  # the same transfer without the pressure term: the grid's velocity before any force
+        plain = grid.dx * m * state.C
+        rows.append(torch.cat([plain, (m * state.v - (plain @ st.frac[:, :, None]).squeeze(-1))[:, :, None]],
+                              dim=2).transpose(0, 1))
+    transfer = torch.cat(rows)  # (columns, N, d + 1)
+    columns = transfer.shape[0]
+    contrib = (transfer.view(-1, d + 1) @ scene.stencil_points.T).view(columns, n, k) * st.weight
+    index = st.index.view(1, -1).expand(columns, -1)
+    buffer = torch.zeros(columns, grid.num_nodes, dtype=state.x.dtype, device=state.x.device)
+    return buffer.scatter_add(1, index, contrib.view(columns, -1)).T.contiguous(), st
 
 
 def boundary_operators(scene: Scene, has_mass: Tensor, pose: RodPose) -> tuple[Tensor, Tensor, Tensor,
@@ -121,15 +149,29 @@ def boundary_operators(scene: Scene, has_mass: Tensor, pose: RodPose) -> tuple[T
             GhostOperator.of(rod_band, fluid, lambda p: rod_velocity(p, pose), active=in_rod))
 
 
+class GridUpdate(NamedTuple):
+    """The grid after a step's forces and boundary conditions.
+
+    Attributes:
+        velocity: node velocities [m/s], (num_nodes, d).
+        force: the fluid's force on the rod [N] (2-D: per unit length [N/m]), (d,).
+        torque: the fluid's torque on the rod about its axis [N·m] (2-D: [N]), 0-d.
+        material: the material's new state (``State.material``), or None.
+    """
+
+    velocity: Tensor
+    force: Tensor
+    torque: Tensor
+    material: Tensor | None
+
+
 def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
-                material_state: Tensor | None = None) -> tuple[Tensor, ...]:
-    """Node velocities after gravity, the shear stress and the cup's and rod's boundary conditions [m/s],
-    (num_nodes, d), with the fluid's force on the rod [N] (d,) and its torque about the rod's axis [N·m]
-    (2-D: per unit length).
+                material_state: Tensor | None = None) -> GridUpdate:
+    """Node velocities after gravity, the shear stress and the cup's and rod's boundary conditions, with the fluid's
+    force and torque on the rod.
 
     With a ``material_state`` (``State.material``), the material is called as
-    ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state,
-    which is returned as a fourth value.
+    ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state.
     """
     grid, d = scene.grid, scene.dim
     mass, momentum = buffer[:, d], buffer[:, :d]
@@ -159,13 +201,17 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     force = on_rod.sum(0)
     arm = scene.nodes[window, :2] - pose.axis
     torque = (arm[:, 0] * on_rod[:, 1] - arm[:, 1] * on_rod[:, 0]).sum()
-    if material_state is not None:
-        return v_new, force, torque, material_state
-    return v_new, force, torque
+    return GridUpdate(v_new, force, torque, material_state)
 
 
-def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float) -> State:
-    """Gather velocity and its MLS gradient back to the particles and advect them."""
+def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float, v_before: Tensor | None = None,
+        fill: Tensor | None = None) -> State:
+    """Gather velocity and its MLS gradient back to the particles and advect them.
+
+    ``v_before``: the grid's velocity before this step's forces [m/s], (num_nodes, d); with it the particle keeps
+    ``scene.flip`` of the velocity the grid did not see, v_p − Σ w v_i^before (FLIP). ``fill``: the nodes' fill
+    (``node_fill``); with it J relaxes towards the packing at ``scene.relaxation_rate`` (``packing``).
+    """
     n, k, d = st.weight.shape[0], st.weight.shape[1], scene.dim
     v_nodes = v_grid.T.contiguous().index_select(1, st.index.view(-1)).view(d, n, k)  # component-major
     # Σ_k w_k v_k [o_kᵀ, 1]: the first moment of the node velocities and, in the last column, the velocity
@@ -175,6 +221,12 @@ def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float) -> S
     # C = (4/dx²) Σ w v_i (x_i − x_p)ᵀ, with x_i − x_p = (offset − frac) dx
     C = (4.0 / scene.grid.dx) * (moments[:, :, :d] - v[:, :, None] * st.frac[:, None, :])
     J = state.J * (1.0 + dt * C.diagonal(dim1=-2, dim2=-1).sum(-1))
+    if fill is not None:
+        packed, inside = packed_volume_ratio(fill, st)
+        J = J + (dt * scene.relaxation_rate) * inside * (packed - J)
+    if v_before is not None:
+        seen = (v_before.T.contiguous().index_select(1, st.index.view(-1)).view(d, n, k) * st.weight).sum(-1).T
+        v = v + scene.flip * (state.v - seen)
     return State(x=state.x + dt * v, v=v, C=C, J=J)
 
 
@@ -194,16 +246,18 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     (in 2-D both per unit length of rod: [N/m], [N]).
     """
     buffer, st = p2g(scene, state, dt)
-    if state.material is None:
-        v_grid, force, torque = grid_update(scene, material, buffer, pose, dt)
-        new = g2p(scene, st, v_grid, state, dt)
-    else:
-        v_grid, force, torque, material_state = grid_update(scene, material, buffer, pose, dt, state.material)
-        new = g2p(scene, st, v_grid, state, dt)
-        new.material = material_state
+    grid = grid_update(scene, material, buffer, pose, dt, state.material)
+    d, mass = scene.dim, buffer[:, scene.dim]
+    v_before = None
+    if scene.flip > 0:
+        v_before = torch.where((mass > MASS_FLOOR)[:, None], buffer[:, d + 1:] / mass.clamp_min(MASS_FLOOR)[:, None],
+                               0.0)
+    fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 else None
+    new = g2p(scene, st, grid.velocity, state, dt, v_before, fill)
+    new.material = grid.material
     tip_rate = pose.velocity[2] if scene.dim == 3 else 0.0
     end_pose = RodPose(axis=pose.axis + 0.5 * dt * pose.velocity[:2], tip=pose.tip + 0.5 * dt * tip_rate,
                        angle=pose.angle + 0.5 * dt * pose.angular_velocity, velocity=pose.velocity,
                        angular_velocity=pose.angular_velocity)
     new.x = project_out_of_solids(scene, new.x, end_pose)
-    return new, force, torque
+    return new, grid.force, grid.torque
