@@ -77,11 +77,12 @@ def test_a_shard_writes_every_pair_and_the_estimator_recovers_its_own_truth(shar
     lines = [json.loads(x) for x in (out / "shards" / "shard-0000.jsonl").read_text().splitlines()]
     assert len(lines) == design.pairs == 6
     for p in lines:
-        # truth and estimator share the resolution here, so the only gap is the sensor's: noise averaged over
-        # ~75 samples and a gain error of 1 % (std), and the ladder's linear interpolation between 0.1 and 1 or
-        # 1 and 10 Pa s (a few % for a drag that is not exactly linear in η)
+        # truth and estimator share the resolution here, so the gap is the sensor's (noise averaged over ~75
+        # samples, a gain error of 1 % std) and the ladder's linear interpolation of ln F in ln η between 0.1 and 1
+        # or 1 and 10 Pa s: on this grid d ln F / d ln η rises from 0.3 to 0.6 across them, a curvature of about
+        # 0.15 that bends ln F by up to (ln 10)² 0.15 / 8 = 0.1 between probes, 0.1 / 0.55 = 18 % in η
         assert p["resolves"]
-        assert p["preliminary_viscosity"] == pytest.approx(p["reference_viscosity"], rel=0.15)
+        assert p["preliminary_viscosity"] == pytest.approx(p["reference_viscosity"], rel=0.2)
         assert p["mean_stirring_speed"] == pytest.approx(0.1, rel=0.15)  # the ramp lowers the mean
         assert p["density_estimate"] == pytest.approx(1000.0, rel=0.02)
     assert len({p["fluid_id"] for p in lines}) == 2

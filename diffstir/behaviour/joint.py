@@ -10,6 +10,7 @@ selection are those of ``identify``: the Laplace covariance with N_eff, BIC with
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,13 @@ class JointProblem:
     def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
         """The paper's loss, mean |measured − predicted| [N], over every window (None for the held-out part)."""
         return float(np.mean(np.abs(self.measured - predicted))) if train else None
+
+    def frozen(self, material: nn.Module) -> "JointProblem":
+        """Each recording's problem with the sound speed ``material`` gets held fixed (``StirProblem.frozen``)."""
+        joint = copy.copy(self)
+        joint.problems = [p.frozen(material) for p in self.problems]
+        joint.config = joint.problems[0].config
+        return joint
 
     def simulate(self, material: nn.Module) -> Tensor:
         """Simulated readings [N] in every window, recording after recording."""

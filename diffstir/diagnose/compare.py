@@ -174,7 +174,7 @@ def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int,
         candidate = PHYSICS_CANDIDATES[name]
         model = PhysicsModel(candidate, ctx.law, ctx)
         fit = CandidateFit(name, "physics", candidate.summary)
-    replay = CachedReplay(problem, model)
+    replay = CachedReplay(problem.frozen(model.material), model)  # its Jacobian and fit share one sound speed
     if resume is None:
         jacobian0 = Readings(replay, model).jacobian(model.theta())
     else:

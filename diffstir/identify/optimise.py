@@ -220,6 +220,8 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         on_iteration: called after each iteration with (model, iteration, loss [N], θ), e.g. to checkpoint.
     """
     start = time.perf_counter()
+    if problem.config.compressibility is not None:  # one sound speed for the whole fit (``StirProblem.frozen``)
+        problem = problem.frozen(model.material)
     cfg = problem.config
     if model.name == "newtonian":  # above the simulator's viscosity cap [Pa·s] the reading stops responding to η
         model.upper[0] = min(model.upper[0], math.log(cfg.viscosity_cap))

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..density import estimate_recording_density
 from ..mpm import SimConfig
+from ..mpm.config import NUMERICS
 from ..recording import Recording, RecordingError
 from .initial import (
     LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, initial_models, newtonian_embedding,
@@ -104,8 +105,7 @@ class Identification:
             "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
                         "end": self.problem.windows.end, "unit": "s"},
             "shear_rate_range": list(self.probed_shear_rates()),
-            "simulation": {"dim": self.problem.config.dim, "dx": self.problem.config.dx,
-                           "sound_speed": self.problem.config.sound_speed, "force_error": self.model_error},
+            "simulation": {**self.problem.config.numerics(), "force_error": self.model_error},
             "seconds": self.seconds,
         }
 
@@ -165,11 +165,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     sensor = SensorNuisance(tuple(sensor_nuisance))
     settings = {"sensor_nuisance": list(sensor.fitted),
                 "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
-                "max_iterations": max_iterations, "dim": config.dim, "dx": config.dx,
-                "sound_speed": config.sound_speed, "density": density_report["value"],
+                "max_iterations": max_iterations, **config.numerics(), "density": density_report["value"],
                 "shear_rate_probes": PROBE_INDEX_STEP,
-                "coarse": None if coarse is None else {"dx": coarse.dx, "sound_speed": coarse.sound_speed,
-                                                        "dim": coarse.dim, "fine_iterations": fine_iterations}}
+                "coarse": None if coarse is None else {**coarse.numerics(), "fine_iterations": fine_iterations}}
     state = _load_checkpoint(checkpoint, settings)
     tracker = _Tracker(names, max_iterations + (0 if coarse is None else fine_iterations), progress, log_dir)
 
@@ -241,8 +239,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             eta = ladder.estimate(stage_problem)
             state["ladder"] = {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs),
                                "estimate": eta, "resolves": ladder.resolves(stage_problem.mean_reading()),
-                               "dim": stage_problem.config.dim, "dx": stage_problem.config.dx,
-                               "sound_speed": stage_problem.config.sound_speed}
+                               **stage_problem.config.numerics()}
             save()
         if "effective_shear_rate" not in state:
             state["effective_shear_rate"] = effective_shear_rate(stage_problem, state["ladder"]["estimate"],
@@ -311,9 +308,8 @@ def _preliminary(ladder: dict, problem: StirProblem) -> dict:
     """The ladder's Newtonian-equivalent viscosity and the stir's mean speed: the rectifier's inputs."""
     return {"viscosity": ladder["estimate"], "mean_stirring_speed": mean_stirring_speed(problem),
             "resolves": ladder["resolves"], "units": {"viscosity": "Pa s", "mean_stirring_speed": "m/s"},
-            "estimator": {"name": "newtonian_ladder", "dim": ladder["dim"], "dx": ladder["dx"],
-                          "sound_speed": ladder["sound_speed"], "probes": ladder["viscosities"],
-                          "mean_abs": ladder["mean_abs"]}}
+            "estimator": {"name": "newtonian_ladder", **{k: ladder.get(k) for k in NUMERICS},
+                          "probes": ladder["viscosities"], "mean_abs": ladder["mean_abs"]}}
 
 
 def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:

@@ -9,7 +9,7 @@ free surface are left out; they are part of the gap that the rectifier corrects)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -114,6 +114,16 @@ class StirProblem:
     def with_config(self, config: SimConfig) -> "StirProblem":
         """The same recording, samples and density, simulated with ``config``."""
         return StirProblem(self.recording, config, self.density, self.windows, max_samples=self.max_samples)
+
+    def frozen(self, material: nn.Module) -> "StirProblem":
+        """This problem with the sound speed that ``material`` gets (``SimConfig.compressibility``) held fixed: a
+        fit's evaluations then simulate the same bulk modulus and, below the viscous limit, the same number of
+        steps, so that its readings vary smoothly with the parameters (a sound speed that followed them changed the
+        step count, and finite-difference Jacobians over 1e-3 in ln η read noise)."""
+        if self.config.compressibility is None:
+            return self
+        c = self.simulator(material).sound_speed(self.trajectory)
+        return self.with_config(replace(self.config, sound_speed=c, compressibility=None))
 
     def simulator(self, material: nn.Module) -> StirringSimulator:
         """The simulator of this recording's rig for a material (a rheology law or a material module)."""

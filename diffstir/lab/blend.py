@@ -196,8 +196,9 @@ def simulate_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = No
     torch.manual_seed(seed)
     material = BlendMaterial(blend.first.make_law(), blend.second.make_law(), blend.alpha)
     sim = StirringSimulator(material, rig, sim_config, density=blend.density, cache_dir=cache_dir)
-    dt = sim.time_step(trajectory)  # one step for every chunk: the sensor model needs uniform times
-    sim.config = replace(sim.config, dt=dt)
+    # one step and one sound speed for every chunk: the sensor model needs uniform times
+    dt = sim.time_step(trajectory)
+    sim.config = replace(sim.config, dt=dt, sound_speed=sim.sound_speed(trajectory), compressibility=None)
     scene = sim.scene
     state = sim.initial_state(trajectory)
     c = initial_concentration(state.x, blend.layout, blend.fraction)

@@ -1,8 +1,9 @@
 """Applying a trained rectifier to an identification's preliminary estimate, without silent extrapolation.
 
-The refined viscosity is given only when the recording resolves viscosity, the preliminary estimate was made at
-the resolution the rectifier was trained on, and every input lies inside the training range; otherwise the
-value is null and ``note`` says why.
+The refined viscosity is given only when the recording resolves viscosity, the preliminary estimate was made with
+the simulator numerics the rectifier was trained on (``SimConfig.numerics``: resolution, sound speed, FLIP share,
+volume relaxation), and every input lies inside the training range; otherwise the value is null and ``note`` says
+why.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from ..mpm.config import FORMER_NUMERICS, NUMERICS
 from .model import Rectifier
 from .training import RectifierModule
 
@@ -34,9 +36,9 @@ def refine(rectifier: Rectifier, metadata: dict, preliminary: dict, density: flo
     inputs = {name: available[name] for name in rectifier.inputs}
     out = {"value": None, "unit": "Pa s", "preliminary": preliminary["viscosity"], "inputs": inputs,
            "checkpoint": checkpoint, "note": ""}
-    trained = metadata.get("estimator", {})
-    used = preliminary["estimator"]
-    mismatched = [k for k in ("dim", "dx", "sound_speed") if trained.get(k) != used.get(k)]
+    trained = {**FORMER_NUMERICS, **metadata.get("estimator", {})}
+    used = {**FORMER_NUMERICS, **preliminary["estimator"]}
+    mismatched = [k for k in NUMERICS if trained.get(k) != used.get(k)]
     if mismatched:
         out["note"] = (f"not refined: the preliminary estimate was made with {', '.join(f'{k}={used.get(k)}' for k in mismatched)}, "
                        f"the rectifier was trained on {', '.join(f'{k}={trained.get(k)}' for k in mismatched)}")

@@ -375,9 +375,7 @@ def _fluid_pairs(design, shard, k, fluid_id, group, ladder, trajectory, density,
             "density": density, "density_estimate": rho["value"],
             "programme": dict(group["programme"]), "sensor": sensor.as_dict(), "sensor_seed": seed,
             "physics": physics.as_dict(), "truth_seconds": truth_seconds,
-            "truth_config": {"dim": truth_config.dim, "dx": truth_config.dx, "sound_speed": truth_config.sound_speed},
-            "estimator_config": {"dim": estimator_config.dim, "dx": estimator_config.dx,
-                                 "sound_speed": estimator_config.sound_speed},
+            "truth_config": truth_config.numerics(), "estimator_config": estimator_config.numerics(),
         })
     return lines
 
