@@ -124,7 +124,6 @@ def test_classify_refuses_bad_points():
 
 @pytest.fixture(scope="module")
 def lab_recordings():
-    torch.set_num_threads(1)
     traj = stirring_programme([{"speed": s, "duration": SEGMENT} for s in SPEEDS], radius=0.015, ramp_time=RAMP)
     # 400 Hz: the fit replays the recorded rod path between samples along chords, which at 100 Hz and 0.16 m/s
     # changes the simulated drag by a few per cent (docs/behaviour.md); that is not what these tests are about

@@ -29,15 +29,6 @@ RATE = 100.0   # Hz
 SEEDS = 5      # noise draws per sensor effect
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One torch thread: the machine's cores are shared, and two threads run these small grids slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def programme(speeds=(0.06, 0.0, -0.06), durations=(0.5, 0.3, 0.5)):
     return stirring_programme([{"speed": s, "duration": d} for s, d in zip(speeds, durations)], radius=0.015,
                               ramp_time=0.1, sample_rate=RATE)

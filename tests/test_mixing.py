@@ -80,7 +80,6 @@ def test_blend_of_one_fluid_is_that_fluid():
 
 @pytest.fixture(scope="module")
 def blend_lab():
-    torch.set_num_threads(1)
     blend = Blend(first=Fluid(name="syrup", density=1200.0, law={"name": "newtonian", "params": {"eta": ETA1}}),
                   second=Fluid(name="thin", density=1000.0, law={"name": "newtonian", "params": {"eta": ETA2}}),
                   fraction=0.7, alpha=0.6, layout="core", strain_mixing=0.3)

@@ -23,14 +23,6 @@ LAWS = [
 ]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def _force(sim) -> torch.Tensor:
     with torch.no_grad():
         return sim(TRAJECTORY).force
