@@ -37,7 +37,9 @@ class SimResult:
         torque: the fluid's torque on the rod about its own axis [N·m], (T,); in 2-D per unit length [N].
         dt: the time step [s].
         state: the fluid's final state.
-        snapshots: particle positions [m] every ``snapshot_every`` steps, for drawing (detached).
+        snapshots: particle positions [m] about every ``snapshot_every`` steps, for drawing (detached): taken at the
+            end of each checkpoint segment (``SimConfig.checkpoint_every`` steps) that reaches a multiple of it.
+        snapshot_times: the time [s] of each snapshot.
         per_unit_length: True for a 2-D slice.
     """
 
@@ -47,6 +49,7 @@ class SimResult:
     dt: float
     state: State
     snapshots: list[Tensor]
+    snapshot_times: list[float]
     per_unit_length: bool
 
 
@@ -140,7 +143,7 @@ class StirringSimulator(nn.Module):
         poses = self._poses(trajectory, times)
         state = initial if initial is not None else self.initial_state(trajectory)
         self.scene.bulk_modulus = self.density * self.sound_speed(trajectory) ** 2
-        forces, torques, snapshots = [], [], []
+        forces, torques, snapshots, snapshot_times = [], [], [], []
         segment = self.config.checkpoint_every or steps
         for start in range(0, steps, segment):
             stop = min(start + segment, steps)
@@ -164,9 +167,10 @@ class StirringSimulator(nn.Module):
             torques.append(out[-1])
             if snapshot_every and (stop // snapshot_every > start // snapshot_every or start == 0):
                 snapshots.append(state.x.detach().clone())
+                snapshot_times.append(float(times[stop]))
         mid = torch.as_tensor(times[:-1] + 0.5 * dt, dtype=self.config.torch_dtype, device=state.x.device)
         return SimResult(times=mid, force=torch.cat(forces), torque=torch.cat(torques), dt=dt, state=state,
-                         snapshots=snapshots, per_unit_length=self.config.dim == 2)
+                         snapshots=snapshots, snapshot_times=snapshot_times, per_unit_length=self.config.dim == 2)
 
     def _differentiable_inputs(self) -> list[Tensor]:
         """What a rollout can be differentiated with respect to besides its initial state: the material's
