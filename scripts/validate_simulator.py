@@ -1,22 +1,44 @@
-"""Compare the simulator with closed-form solutions and print a markdown table (docs/validation.md).
+"""Compare the simulator with closed-form solutions and an independent reference; print markdown (docs/validation.md).
 
-    python scripts/validate_simulator.py [--checks couette power_law translate translate_viscosity convergence rest3d]
-        [--rest-time 8]
+    python scripts/validate_simulator.py [--checks couette power_law translate buoyancy2d convergence rest3d stir
+                                                   stir_convergence stir_sound_speed stir_history
+                                                   numerical_viscosity]
+        [--rest-time 8] [--reference-dir DIR]
 
-Checks (the fitting default, conf/sim/slice2d.yaml, is 2.5 mm cells at c = 1 m/s; c = 2 m/s was the default until
-2026-11-22 and is printed beside it):
+Every 2-D check runs the fitting default (conf/sim/slice2d.yaml: 2.5 mm cells, a FLIP share of 0.95, J relaxed
+towards the grid's packing over 50 ms, the sound speed raised per rollout to 3 % compression from 1 m/s) and, for
+comparison, the numerics it replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own
+divergence, a fixed 1 m/s); the stir check also the default at 1 % and 0.3 % compression.
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
   length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
 - power_law: the same with a power-law fluid, K = 1 Pa s^n, n = 0.6, Omega = 1 rad/s (Re = 0.6 at the rod), against
   2 pi K a^2 [2 Omega / (n (1 - (a/b)^(2/n)))]^n.
-- translate: rod translating at 1 mm/s at the centre, 2-D, mu = 1 and 0.2 Pa s; steady force per unit length against
-  4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)], at sound speeds 1, 2 and 0.5 m/s.
-- translate_viscosity: the translating rod at mu = 1 and 0.2 Pa s on 2.5 and 2 mm cells at c = 1 and 2 m/s: how the
-  drag's excess over the exact one scales with the viscosity and the bulk modulus (not run by default).
-- convergence: the Newtonian and power-law Couette checks on 5, 2.5, 2 and 1.6 mm cells (not run by default).
+- translate: rod translating through the cup's centre at Re = rho U 2a / mu = 0.1 (mu = 0.5, 1 and 3 Pa s), 2 mm
+  either side of it; steady force per unit length against 4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)].
+- buoyancy2d: the rod held still 15 mm off centre under a body force of 1 m/s² along x (standing in for gravity,
+  which a horizontal slice lacks); steady force per unit length against -rho g pi a^2 (a sound speed of 2 m/s).
+- convergence: the Newtonian and power-law Couette checks and the 1 Pa s translating rod of the fitting default on 5,
+  2.5, 2 and 1.6 mm cells (not run by default).
 - rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): the fluid's volume by its particles'
   J (sum J V0), the height of its centre of mass (at rest neither may change), and the vertical force against
   rho g V_immersed.
+- stir: the paper's stir (the rod on a 15 mm circle at 0.1 m/s, 0.5 s ramp, 1.5 s) in 2-D at eta = 0.05, 0.2, 1 and
+  3 Pa s against the incompressible finite-element reference of scripts/stir_reference.py (computed once into
+  --reference-dir, 1-5 minutes per viscosity; needs scikit-fem). Printed per run: the drag (the force against the
+  rod's motion) and the radial force averaged from 0.9 s, their deviation from the reference, the rms deviation of
+  the whole force vector from 0.3 s (the simulator's force smoothed over 20 ms) and the rms of what the smoothing
+  removed, both over the reference's rms force, and the sound speed and number of steps (not run by default).
+- stir_convergence: the stir at 1 Pa s with the default's numerics on 2.5, 1.67 and 1.25 mm cells, at 3 % and 1 %
+  compression: how much of the stir's deviation is the grid's (not run by default).
+- numerical_viscosity: the viscosity [m^2/s] at which the transfers alone damp an 8-cell shear wave in an inviscid
+  fluid (tests/problems.py), at time steps of 1, 0.25, 0.1 and 0.06 ms, with and without the FLIP share (not run
+  by default).
+- stir_sound_speed: the stir at 1 Pa s with the default's numerics at fixed sound speeds of 2, 4, 8 and 16 m/s
+  (not run by default).
+- stir_history: the stir at 1 Pa s (the default, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
+  time windows: the drag and radial force against the reference's, and the particles next to the rod (within half
+  a cell and from half a cell to one cell of its surface, per area, over the resting fluid's), and the fluid's
+  angular momentum about the cup's axis at the end (not run by default).
 
 Runs with one intra-op thread: the simulator's tensors are small, and on a shared 2-core machine two threads made
 every step many times slower (docs/benchmarks.md).
@@ -35,15 +57,32 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from problems import couette_torque_newtonian, couette_torque_power_law, translating_rod_force  # noqa: E402
+from problems import (couette_torque_newtonian, couette_torque_power_law, fitting_default,  # noqa: E402
+                      numerical_viscosity, translating_rod_force)
+
+import numpy as np  # noqa: E402
 
 from diffstir.mpm import SimConfig, StirringSimulator  # noqa: E402
 from diffstir.rheology import Newtonian, PowerLaw  # noqa: E402
 from diffstir.rig import Rig  # noqa: E402
-from diffstir.trajectory import spin, stationary, translate  # noqa: E402
+from diffstir.trajectory import circle, spin, stationary, translate  # noqa: E402
 
 RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius
+DEFAULT = fitting_default()
+FORMER = DEFAULT.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
+CONFIGS = {"default": DEFAULT, "former": FORMER}
+STIR_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
+                "default at 0.3 %": DEFAULT.replace(compressibility=0.003), "former": FORMER}
+STIR_SOUND_SPEEDS = {f"default, c = {c:g} m/s": DEFAULT.replace(compressibility=None, sound_speed=c)
+                     for c in (2.0, 4.0, 8.0, 16.0)}  # m/s
+STIR_VISCOSITIES = (0.05, 0.2, 1.0, 3.0)  # Pa s
+HISTORY_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
+                   "default, APIC (flip 0)": DEFAULT.replace(flip=0.0),
+                   "default, relaxation 10 ms": DEFAULT.replace(volume_relaxation=0.01)}
+STIR_CONVERGENCE = {f"default{pct}, dx = {dx * 1e3:.3g} mm": DEFAULT.replace(dx=dx, **changes)
+                    for dx in (0.0025, 0.005 / 3, 0.00125)
+                    for pct, changes in (("", {}), (" at 1 %", {"compressibility": 0.01}))}
 
 
 def steady(values: torch.Tensor) -> float:
@@ -51,73 +90,199 @@ def steady(values: torch.Tensor) -> float:
     return values[int(0.7 * len(values)):].mean().item()
 
 
-def couette(dx: float, sound_speed: float) -> tuple[str, float, float]:
-    sim = StirringSimulator(Newtonian(eta=1.0), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
+def couette(config: SimConfig, label: str) -> tuple[str, float, float]:
+    sim = StirringSimulator(Newtonian(eta=1.0), RIG, config, density=1000.0)
     with torch.no_grad():
         result = sim(spin(2.0, duration=0.6, ramp_time=0.1))
-    return (f"Couette torque, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s [N]", -steady(result.torque),
-            couette_torque_newtonian(1.0, 2.0, A, B))
+    return (f"Couette torque, 2-D, {label} [N]", -steady(result.torque), couette_torque_newtonian(1.0, 2.0, A, B))
 
 
-def power_law_couette(dx: float, sound_speed: float) -> tuple[str, float, float]:
+def power_law_couette(config: SimConfig, label: str) -> tuple[str, float, float]:
     k, n, omega = 1.0, 0.6, 1.0
-    sim = StirringSimulator(PowerLaw(k=k, n=n), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
+    sim = StirringSimulator(PowerLaw(k=k, n=n), RIG, config, density=1000.0)
     with torch.no_grad():
         result = sim(spin(omega, duration=0.6, ramp_time=0.1))
-    return (f"power-law (n = {n}) Couette torque, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s [N]",
-            -steady(result.torque), couette_torque_power_law(k, n, omega, A, B))
+    return (f"power-law (n = {n}) Couette torque, 2-D, {label} [N]", -steady(result.torque),
+            couette_torque_power_law(k, n, omega, A, B))
 
 
-def translating(dx: float, sound_speed: float, mu: float = 1.0) -> tuple[str, float, float]:
-    sim = StirringSimulator(Newtonian(eta=mu), RIG, SimConfig(dim=2, dx=dx, sound_speed=sound_speed), density=1000.0)
+def buoyancy_2d(config: SimConfig, label: str, g: float = 1.0) -> tuple[str, float, float]:
+    """The rod held still, off centre, in the slice under a body force g [m/s²] along x (a horizontal slice has no
+    gravity; this stands in for it): the fluid's pressure gradient ρ g pushes the rod with −ρ g π a² per unit
+    length, the 2-D check of the reaction's pressure part. 1 Pa s damps the fluid's settling."""
+    sim = StirringSimulator(Newtonian(eta=1.0), RIG, config.replace(compressibility=None, sound_speed=2.0),
+                            density=1000.0)
+    sim.scene.gravity = torch.tensor([g, 0.0], dtype=sim.scene.gravity.dtype, device=sim.scene.gravity.device)
     with torch.no_grad():
-        result = sim(translate((1e-3, 0.0), duration=1.0, start=(-0.5e-3, 0.0)))
-    viscosity = "" if mu == 1.0 else f", mu = {mu:g} Pa s"
-    return (f"translating rod drag, 2-D, dx = {dx * 1e3:g} mm, c = {sound_speed:g} m/s{viscosity} [N/m]",
-            -steady(result.force[:, 0]), translating_rod_force(mu, 1e-3, A, B))
+        result = sim(stationary(0.6, position=(0.015, 0.0), sample_rate=1000.0))
+    return (f"rod at rest under a body force of {g:g} m/s², 2-D, {label} [N/m]", steady(result.force[:, 0]),
+            -1000.0 * g * math.pi * A**2)
+
+
+def translating(config: SimConfig, label: str, mu: float = 1.0) -> tuple[str, float, float]:
+    """The rod translating through the cup's centre at Re = ρ U 2a / μ = 0.1, 2 mm either side of it."""
+    speed = 0.1 * mu / (1000.0 * 2 * A)
+    sim = StirringSimulator(Newtonian(eta=mu), RIG, config, density=1000.0)
+    with torch.no_grad():
+        result = sim(translate((speed, 0.0), duration=0.004 / speed, start=(-0.002, 0.0)))
+    return (f"translating rod drag, 2-D, {label}, mu = {mu:g} Pa s, U = {speed * 1e3:.3g} mm/s [N/m]",
+            -steady(result.force[:, 0]), translating_rod_force(mu, speed, A, B))
 
 
 def rest3d(duration: float) -> list[tuple[str, float, float]]:
-    config = SimConfig(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45)
-    sim = StirringSimulator(Newtonian(eta=0.1), RIG, config, density=1000.0)
-    trajectory = stationary(duration)
-    start = sim.initial_state(trajectory)
+    rows = []
+    for label, config in (("paper's numerics", SimConfig(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45, flip=0.0,
+                                                         volume_relaxation=0.0)),
+                          ("default numerics", SimConfig(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45))):
+        sim = StirringSimulator(Newtonian(eta=0.1), RIG, config, density=1000.0)
+        trajectory = stationary(duration)
+        start = sim.initial_state(trajectory)
+        with torch.no_grad():
+            result = sim(trajectory, initial=start)
+        volume = lambda s: (s.J.sum() * sim.scene.particle_volume).item()  # noqa: E731
+        height = lambda s: s.x[:, 2].mean().item()  # noqa: E731
+        buoyancy = 1000.0 * 9.81 * math.pi * A**2 * RIG.rod.immersion_depth
+        rows += [(f"3-D rest (1 cm cells, {label}), fluid volume by J, sum J V0, after {duration:g} s / at start",
+                  volume(result.state) / volume(start), 1.0),
+                 (f"3-D rest (1 cm cells, {label}), centre of mass height after {duration:g} s / at start",
+                  height(result.state) / height(start), 1.0),
+                 (f"3-D rest (1 cm cells, {label}), vertical force on the rod [N] vs rho g V",
+                  steady(result.force[:, 2]), buoyancy)]
+    return rows
+
+
+def stir_reference(viscosity: float, directory: Path) -> dict:
+    """The finite-element reference of the paper's stir at ``viscosity`` [Pa s], computed once into ``directory``."""
+    path = directory / f"stir_{viscosity:g}.npz"
+    if not path.exists() or "angular_momentum" not in np.load(path):  # made before it was recorded
+        from stir_reference import stir  # scripts/stir_reference.py; needs scikit-fem
+
+        directory.mkdir(parents=True, exist_ok=True)
+        np.savez(path, **stir(viscosity, step=0.0005 if viscosity < 0.1 else 0.002))
+    return dict(np.load(path))
+
+
+def stir_row(config: SimConfig, label: str, viscosity: float, reference: dict) -> str:
+    trajectory = circle(radius=0.015, speed=0.1, duration=1.5)
+    sim = StirringSimulator(Newtonian(eta=viscosity), RIG, config, density=1000.0)
     with torch.no_grad():
-        result = sim(trajectory, initial=start)
-    volume = lambda s: (s.J.sum() * sim.scene.particle_volume).item()  # noqa: E731
-    height = lambda s: s.x[:, 2].mean().item()  # noqa: E731
-    buoyancy = 1000.0 * 9.81 * math.pi * A**2 * RIG.rod.immersion_depth
-    return [(f"3-D rest (1 cm cells), fluid volume by J, sum J V0, after {duration:g} s / at start",
-             volume(result.state) / volume(start), 1.0),
-            (f"3-D rest (1 cm cells), centre of mass height after {duration:g} s / at start",
-             height(result.state) / height(start), 1.0),
-            ("3-D rest (1 cm cells), vertical force on the rod [N] vs rho g V", steady(result.force[:, 2]), buoyancy)]
+        result = sim(trajectory)
+    t = result.times.double().numpy()
+    radial, along = _orbit_components(trajectory, t, result.force.double().numpy())
+    width = max(1, int(round(0.02 / result.dt)))
+    kernel = np.ones(width) / width
+    radial_s, along_s = (np.convolve(x, kernel, "same") for x in (radial, along))
+    t_ref = reference["times"]
+    window = (t_ref > 0.3) & (t_ref < 1.45)
+    late = t_ref > 0.9
+    scale = np.sqrt(np.mean(reference["radial"][window] ** 2 + reference["tangential"][window] ** 2))
+    deviation = np.sqrt(np.mean((np.interp(t_ref[window], t, radial_s) - reference["radial"][window]) ** 2
+                                + (np.interp(t_ref[window], t, along_s) - reference["tangential"][window]) ** 2))
+    noise = np.sqrt(np.mean((along - along_s)[width:-width] ** 2 + (radial - radial_s)[width:-width] ** 2))
+    drag, drag_ref = -np.interp(t_ref[late], t, along_s).mean(), -reference["tangential"][late].mean()
+    side, side_ref = np.interp(t_ref[late], t, radial_s).mean(), reference["radial"][late].mean()
+    return (f"| {viscosity:g} | {label} | {sim.sound_speed(trajectory):.2f} | {len(t)} | {drag:.4f} | {drag_ref:.4f} | "
+            f"{100 * (drag / drag_ref - 1):+.1f} % | {side:+.4f} | {side_ref:+.4f} | {100 * deviation / scale:.1f} % | "
+            f"{100 * noise / scale:.1f} % |")
+
+
+def stir_history(directory: Path, viscosity: float = 1.0) -> None:
+    reference = stir_reference(viscosity, directory)
+    trajectory = circle(radius=0.015, speed=0.1, duration=1.5)
+    windows = ((0.1, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.2), (1.2, 1.5))  # s
+    print(f"\n| numerics | window [s] | drag [N/m] | reference | ratio | radial [N/m] | reference | "
+          f"particles within dx/2 of the rod | dx/2 to dx |\n|---|---|---|---|---|---|---|---|---|")
+    spin_up = []
+    for label, config in HISTORY_CONFIGS.items():
+        sim = StirringSimulator(Newtonian(eta=viscosity), RIG, config, density=1000.0)
+        every = max(1, int(round(0.01 / sim.time_step(trajectory))))  # a snapshot every 10 ms
+        with torch.no_grad():
+            result = sim(trajectory, snapshot_every=every)
+        t = result.times.double().numpy()
+        radial, along = _orbit_components(trajectory, t, result.force.double().numpy())
+        shot_times = np.array(result.snapshot_times)
+        centres, _, _ = trajectory.poses(shot_times)
+        per_area = (config.particles_per_cell / config.dx) ** 2
+        shells = []
+        for x, centre in zip(result.snapshots, centres):
+            r = np.hypot(*(x.double().numpy() - centre).T)
+            shells.append([((r >= A + lo * config.dx) & (r < A + hi * config.dx)).sum()
+                           / (math.pi * ((A + hi * config.dx) ** 2 - (A + lo * config.dx) ** 2) * per_area)
+                           for lo, hi in ((0.0, 0.5), (0.5, 1.0))])
+        shells = np.array(shells)
+        x, v = result.state.x.double(), result.state.v.double()
+        spin_up.append((label, float(sim.scene.particle_mass * (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0]).sum())))
+        for lo, hi in windows:
+            m, mr, ms = ((x > lo) & (x <= hi) for x in (t, reference["times"], shot_times))
+            drag, drag_ref = -along[m].mean(), -reference["tangential"][mr].mean()
+            print(f"| {label} | {lo:g}-{hi:g} | {drag:.4f} | {drag_ref:.4f} | {drag / drag_ref:.3f} | "
+                  f"{radial[m].mean():+.4f} | {reference['radial'][mr].mean():+.4f} | {shells[ms, 0].mean():.2f} | "
+                  f"{shells[ms, 1].mean():.2f} |", flush=True)
+    final = reference["angular_momentum"][-1]
+    for label, value in spin_up:
+        print(f"{label}: the fluid's angular momentum about the cup's axis at {trajectory.duration:g} s "
+              f"{value:.4e} kg m²/s per m, reference {final:.4e} ({value / final:.3f})")
+
+
+def _orbit_components(trajectory, t: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The force [N/m] along the orbit's radius (outwards) and along the rod's motion, at times ``t`` [s]."""
+    xy, _, _ = trajectory.poses(t)
+    phase = np.arctan2(xy[:, 1], xy[:, 0])
+    return (force[:, 0] * np.cos(phase) + force[:, 1] * np.sin(phase),
+            force[:, 1] * np.cos(phase) - force[:, 0] * np.sin(phase))
+
+
+def stir(directory: Path, configs: dict[str, SimConfig], viscosities: tuple[float, ...]) -> None:
+    print("\n| η [Pa·s] | numerics | c [m/s] | steps | drag [N/m] | reference | deviation | radial [N/m] | reference | "
+          "rms deviation | rms noise |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    for viscosity in viscosities:
+        reference = stir_reference(viscosity, directory)
+        for label, config in configs.items():
+            print(stir_row(config, label, viscosity, reference), flush=True)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--checks", nargs="+", default=["couette", "power_law", "translate", "rest3d"])
+    parser.add_argument("--checks", nargs="+",
+                        default=["couette", "power_law", "translate", "buoyancy2d", "rest3d"])
     parser.add_argument("--rest-time", type=float, default=8.0, help="duration of the rest3d check [s]")
+    parser.add_argument("--reference-dir", type=Path, default=Path("outputs/stir-reference"),
+                        help="where the stir check keeps its finite-element references")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at "
-          f"start, torch {torch.__version__}, 1 thread, float32")
-    print("| check | simulated | closed form | ratio |")
-    print("|---|---|---|---|")
+    print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average "
+          f"{os.getloadavg()[0]:.1f} at start, torch {torch.__version__}, 1 thread, float32")
     checks = {
-        "couette": lambda: [couette(0.005, 1.0), couette(0.0025, 1.0), couette(0.0025, 2.0)],
-        "translate": lambda: [translating(0.0025, 1.0), translating(0.0025, 1.0, 0.2), translating(0.0025, 2.0),
-                              translating(0.0025, 0.5)],
-        "translate_viscosity": lambda: [translating(dx, c, mu) for c in (1.0, 2.0) for dx in (0.0025, 0.002)
-                                        for mu in (1.0, 0.2)],
-        "power_law": lambda: [power_law_couette(0.0025, 1.0), power_law_couette(0.0025, 2.0)],
-        "convergence": lambda: [check(dx, 1.0) for dx in (0.005, 0.0025, 0.002, 0.0016)
-                                for check in (couette, power_law_couette)],
+        "couette": lambda: [couette(config, label) for label, config in CONFIGS.items()],
+        "power_law": lambda: [power_law_couette(config, label) for label, config in CONFIGS.items()],
+        "translate": lambda: [translating(config, label, mu) for mu in (0.5, 1.0, 3.0)
+                              for label, config in CONFIGS.items()],
+        "buoyancy2d": lambda: [buoyancy_2d(config, label) for label, config in CONFIGS.items()],
+        "convergence": lambda: [check(DEFAULT.replace(dx=dx), f"default, dx = {dx * 1e3:g} mm")
+                                for dx in (0.005, 0.0025, 0.002, 0.0016)
+                                for check in (couette, power_law_couette, translating)],
         "rest3d": lambda: rest3d(args.rest_time),
     }
-    for name in args.checks:
+    closed = [name for name in args.checks if name in checks]
+    if closed:
+        print("| check | simulated | closed form | ratio |")
+        print("|---|---|---|---|")
+    for name in closed:
         for label, value, reference in checks[name]():
             print(f"| {label} | {value:.5g} | {reference:.5g} | {value / reference:.3f} |", flush=True)
+    if "stir" in args.checks:
+        stir(args.reference_dir, STIR_CONFIGS, STIR_VISCOSITIES)
+    if "stir_convergence" in args.checks:
+        stir(args.reference_dir, STIR_CONVERGENCE, (1.0,))
+    if "numerical_viscosity" in args.checks:
+        print("\n| Δt [ms] | numerical viscosity, default [m²/s] | APIC alone (flip 0) [m²/s] |\n|---|---|---|")
+        for dt in (1e-3, 2.5e-4, 1e-4, 6e-5):  # s
+            print(f"| {dt * 1e3:g} | {numerical_viscosity(DEFAULT.replace(dt=dt), None):.2e} | "
+                  f"{numerical_viscosity(DEFAULT.replace(dt=dt, flip=0.0), None):.2e} |", flush=True)
+    if "stir_sound_speed" in args.checks:
+        stir(args.reference_dir, STIR_SOUND_SPEEDS, (1.0,))
+    if "stir_history" in args.checks:
+        stir_history(args.reference_dir)
 
 
 if __name__ == "__main__":

@@ -10,39 +10,13 @@ import torch
 
 from diffstir.mpm import StirringSimulator
 from diffstir.mpm.packing import packed_volume_ratio
-from diffstir.mpm.state import State
 from diffstir.mpm.step import node_fill, p2g
 from diffstir.rheology import Newtonian
-from diffstir.rig import Rig, Rod
-from diffstir.trajectory import circle, stationary
-from problems import fitting_default
+from diffstir.rig import Rig
+from diffstir.trajectory import circle
+from problems import fitting_default, numerical_viscosity
 
 SLICE = fitting_default()
-
-
-def numerical_viscosity(config, cache_dir, duration=0.2, cells=8, amplitude=0.01) -> float:
-    """ν [m²/s] at which an inviscid shear wave u_x = A sin(k y) (wavelength ``cells`` cells, in a Gaussian envelope
-    of 2 cm in the middle of the cup) decays by the transfers alone: A(t) = A(0) exp(−ν k² t)."""
-    sim = StirringSimulator(Newtonian(eta=1e-4), Rig(rod=Rod(radius=0.003)), config, density=1000.0,
-                            cache_dir=cache_dir)
-    trajectory = stationary(duration, position=(0.03, 0.0))
-    state = sim.initial_state(trajectory)
-    k = 2 * math.pi / (cells * config.dx)
-
-    def envelope(x):
-        return torch.exp(-(x.norm(dim=1) / 0.02) ** 2)
-
-    def projection(s):  # the wave's amplitude by least squares on the particles
-        shape = torch.sin(k * s.x[:, 1]) * envelope(s.x)
-        return float((s.v[:, 0] * shape).sum() / (shape**2).sum())
-
-    v, C = torch.zeros_like(state.v), torch.zeros_like(state.C)
-    v[:, 0] = amplitude * torch.sin(k * state.x[:, 1]) * envelope(state.x)
-    C[:, 0, 1] = amplitude * k * torch.cos(k * state.x[:, 1]) * envelope(state.x)
-    start = State(x=state.x, v=v, C=C, J=state.J)
-    with torch.no_grad():
-        end = sim(trajectory, initial=start).state
-    return -math.log(projection(end) / projection(start)) / (k**2 * duration)
 
 
 @pytest.mark.parametrize("dt", [1e-3, 2.5e-4])
