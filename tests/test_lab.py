@@ -104,6 +104,7 @@ def test_quantisation_dead_band_and_one_sided_follow_their_definitions():
     q = quantise(x, 0.005)
     assert np.all(np.abs(q - x) <= 0.0025 + 1e-12)
     np.testing.assert_allclose(q / 0.005, np.round(q / 0.005), atol=1e-9)
+    assert repr(float(quantise(np.array([0.08016]), 1e-4)[0])) == "0.0802"  # written as the multiple it is
     d = dead_band(x, 0.01)
     assert np.all(d[np.abs(x) <= 0.01] == 0)
     np.testing.assert_allclose(d[x > 0.01], x[x > 0.01] - 0.01)

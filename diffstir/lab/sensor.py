@@ -49,9 +49,13 @@ def dead_band(x: np.ndarray, width: float) -> np.ndarray:
 
 
 def quantise(x: np.ndarray, resolution: float) -> np.ndarray:
-    """Round to the nearest multiple of ``resolution`` [N] (0: unchanged); −0 is written as 0."""
+    """Round to the nearest multiple of ``resolution`` [N] (0: unchanged); −0 is written as 0. The multiple is
+    rounded to 12 decimals (or 3 below the resolution's), so that it is written as 0.0802, not 0.08020000000000001."""
     x = np.asarray(x, dtype=np.float64)
-    return x.copy() if resolution == 0 else resolution * np.round(x / resolution) + 0.0
+    if resolution == 0:
+        return x.copy()
+    decimals = max(12, math.ceil(-math.log10(resolution)) + 3)
+    return np.round(resolution * np.round(x / resolution), decimals) + 0.0
 
 
 def one_sided(x: np.ndarray) -> np.ndarray:
