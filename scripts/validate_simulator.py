@@ -58,7 +58,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from problems import (couette_torque_newtonian, couette_torque_power_law, fitting_default,  # noqa: E402
-                      numerical_viscosity, translating_rod_force)
+                      numerical_viscosity, rod_in_pressure_gradient, translating_rod_force)
 
 import numpy as np  # noqa: E402
 
@@ -107,16 +107,9 @@ def power_law_couette(config: SimConfig, label: str) -> tuple[str, float, float]
 
 
 def buoyancy_2d(config: SimConfig, label: str, g: float = 1.0) -> tuple[str, float, float]:
-    """The rod held still, off centre, in the slice under a body force g [m/s²] along x (a horizontal slice has no
-    gravity; this stands in for it): the fluid's pressure gradient ρ g pushes the rod with −ρ g π a² per unit
-    length, the 2-D check of the reaction's pressure part. 1 Pa s damps the fluid's settling."""
-    sim = StirringSimulator(Newtonian(eta=1.0), RIG, config.replace(compressibility=None, sound_speed=2.0),
-                            density=1000.0)
-    sim.scene.gravity = torch.tensor([g, 0.0], dtype=sim.scene.gravity.dtype, device=sim.scene.gravity.device)
-    with torch.no_grad():
-        result = sim(stationary(0.6, position=(0.015, 0.0), sample_rate=1000.0))
-    return (f"rod at rest under a body force of {g:g} m/s², 2-D, {label} [N/m]", steady(result.force[:, 0]),
-            -1000.0 * g * math.pi * A**2)
+    """The pressure part of the rod's reaction in 2-D (``problems.rod_in_pressure_gradient``)."""
+    return (f"rod at rest under a body force of {g:g} m/s², 2-D, {label} [N/m]",
+            float(rod_in_pressure_gradient(config, g)[0]), -1000.0 * g * math.pi * A**2)
 
 
 def translating(config: SimConfig, label: str, mu: float = 1.0) -> tuple[str, float, float]:

@@ -66,3 +66,16 @@ def numerical_viscosity(config: SimConfig, cache_dir: str | Path | None, duratio
     with torch.no_grad():
         end = sim(trajectory, initial=start).state
     return -math.log(projection(end) / projection(start)) / (k**2 * duration)
+
+
+def rod_in_pressure_gradient(config: SimConfig, g: float = 1.0) -> torch.Tensor:
+    """The steady force per unit length [N/m], (2,), on the rod held still 15 mm off centre in the 2-D slice under a
+    body force g [m/s²] along x (standing in for gravity, which a horizontal slice lacks): the closed form is the
+    hydrostatic gradient's push, −ρ g π a² along x. 1 Pa·s damps the settling's sloshing; c = 2 m/s; the mean of
+    the last 30 % of 0.6 s."""
+    sim = StirringSimulator(Newtonian(eta=1.0), PAPER_RIG, config.replace(compressibility=None, sound_speed=2.0),
+                            density=1000.0)
+    sim.scene.gravity = torch.tensor([g, 0.0], dtype=sim.scene.gravity.dtype, device=sim.scene.gravity.device)
+    with torch.no_grad():
+        force = sim(stationary(0.6, position=(0.015, 0.0), sample_rate=1000.0)).force
+    return force[int(0.7 * len(force)):].mean(0)

@@ -11,7 +11,8 @@ from diffstir.mpm import Corotated, SimConfig, StirringSimulator
 from diffstir.rheology import Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw
 from diffstir.rig import Rig
 from diffstir.trajectory import circle, spin, stationary, translate
-from problems import couette_torque_newtonian, couette_torque_power_law, fitting_default, translating_rod_force
+from problems import (couette_torque_newtonian, couette_torque_power_law, fitting_default, rod_in_pressure_gradient,
+                      translating_rod_force)
 
 F64 = dict(dtype=torch.float64)
 TINY = SimConfig(dim=2, dx=0.005, sound_speed=2.0, dtype="float64", dt=1e-3, checkpoint_every=7)
@@ -173,14 +174,9 @@ def test_rod_feels_the_pressure_gradient_2d():
     along x (standing in for gravity, which a horizontal slice lacks) is pushed back by the hydrostatic pressure
     gradient, −ρ g π a² per unit length, within the 5 % of the other closed forms (0.991 measured; the 3-D rod's
     buoyancy, below, still fails). 1 Pa·s damps the settling's sloshing within the first 0.2 s of 0.6 s."""
-    rig, g = Rig(), 1.0
-    sim = StirringSimulator(Newtonian(eta=1.0), rig, SLICE.replace(compressibility=None, sound_speed=2.0),
-                            density=1000.0)
-    sim.scene.gravity = torch.tensor([g, 0.0], dtype=sim.scene.gravity.dtype)
-    with torch.no_grad():
-        force = sim(stationary(0.6, position=(0.015, 0.0), sample_rate=1000.0)).force
-    steady = force[int(0.7 * len(force)):].mean(0)
-    assert float(steady[0]) == pytest.approx(-1000.0 * g * math.pi * rig.rod.radius**2, rel=0.05)
+    g = 1.0
+    steady = rod_in_pressure_gradient(SLICE, g)
+    assert float(steady[0]) == pytest.approx(-1000.0 * g * math.pi * Rig().rod.radius**2, rel=0.05)
     assert abs(float(steady[1])) < 0.01 * abs(float(steady[0]))  # no force across the gradient, by symmetry
 
 
