@@ -3,12 +3,14 @@
     python scripts/validate_simulator.py [--checks couette power_law translate buoyancy2d convergence rest3d stir
                                                    stir_convergence stir_sound_speed stir_history
                                                    numerical_viscosity]
-        [--rest-time 8] [--reference-dir DIR]
+        [--rest-time 8] [--reference-dir DIR] [--numerics LABEL ...]
 
 Every 2-D check runs the fitting default (conf/sim/slice2d.yaml: 2.5 mm cells, a FLIP share of 0.95, J relaxed
 towards the grid's packing over 50 ms, the sound speed raised per rollout to 3 % compression from 1 m/s) and, for
 comparison, the numerics it replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own
-divergence, a fixed 1 m/s); the stir check also the default at 1 % and 0.3 % compression.
+divergence, a fixed 1 m/s) and the default with an incompressible pressure ("projection", sim.pressure=projection,
+diffstir/mpm/projection.py); the stir check also the default at 1 % and 0.3 % compression. --numerics runs only
+the numerics whose labels start with the given words.
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
   length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
 - power_law: the same with a power-law fluid, K = 1 Pa s^n, n = 0.6, Omega = 1 rad/s (Re = 0.6 at the rod), against
@@ -29,7 +31,7 @@ divergence, a fixed 1 m/s); the stir check also the default at 1 % and 0.3 % com
   the whole force vector from 0.3 s (the simulator's force smoothed over 20 ms) and the rms of what the smoothing
   removed, both over the reference's rms force, and the sound speed and number of steps (not run by default).
 - stir_convergence: the stir at 1 Pa s with the default's numerics on 2.5, 1.67 and 1.25 mm cells, at 3 % and 1 %
-  compression: how much of the stir's deviation is the grid's (not run by default).
+  compression and with the projection: how much of the stir's deviation is the grid's (not run by default).
 - numerical_viscosity: the viscosity [m^2/s] at which the transfers alone damp an 8-cell shear wave in an inviscid
   fluid (tests/problems.py), at time steps of 1, 0.25, 0.1 and 0.06 ms, with and without the FLIP share (not run
   by default).
@@ -71,18 +73,21 @@ RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius
 DEFAULT = fitting_default()
 FORMER = DEFAULT.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
-CONFIGS = {"default": DEFAULT, "former": FORMER}
+PROJECTION = DEFAULT.replace(pressure="projection")
+CONFIGS = {"default": DEFAULT, "former": FORMER, "projection": PROJECTION}
 STIR_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
-                "default at 0.3 %": DEFAULT.replace(compressibility=0.003), "former": FORMER}
+                "default at 0.3 %": DEFAULT.replace(compressibility=0.003), "former": FORMER,
+                "projection": PROJECTION}
 STIR_SOUND_SPEEDS = {f"default, c = {c:g} m/s": DEFAULT.replace(compressibility=None, sound_speed=c)
                      for c in (2.0, 4.0, 8.0, 16.0)}  # m/s
 STIR_VISCOSITIES = (0.05, 0.2, 1.0, 3.0)  # Pa s
 HISTORY_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
                    "default, APIC (flip 0)": DEFAULT.replace(flip=0.0),
                    "default, relaxation 10 ms": DEFAULT.replace(volume_relaxation=0.01)}
-STIR_CONVERGENCE = {f"default{pct}, dx = {dx * 1e3:.3g} mm": DEFAULT.replace(dx=dx, **changes)
+STIR_CONVERGENCE = {f"{label}, dx = {dx * 1e3:.3g} mm": DEFAULT.replace(dx=dx, **changes)
                     for dx in (0.0025, 0.005 / 3, 0.00125)
-                    for pct, changes in (("", {}), (" at 1 %", {"compressibility": 0.01}))}
+                    for label, changes in (("default", {}), ("default at 1 %", {"compressibility": 0.01}),
+                                           ("projection", {"pressure": "projection"}))}
 
 
 def steady(values: torch.Tensor) -> float:
@@ -174,7 +179,8 @@ def stir_row(config: SimConfig, label: str, viscosity: float, reference: dict) -
     noise = np.sqrt(np.mean((along - along_s)[width:-width] ** 2 + (radial - radial_s)[width:-width] ** 2))
     drag, drag_ref = -np.interp(t_ref[late], t, along_s).mean(), -reference["tangential"][late].mean()
     side, side_ref = np.interp(t_ref[late], t, radial_s).mean(), reference["radial"][late].mean()
-    return (f"| {viscosity:g} | {label} | {sim.sound_speed(trajectory):.2f} | {len(t)} | {drag:.4f} | {drag_ref:.4f} | "
+    sound = f"{sim.sound_speed(trajectory):.2f}" if config.pressure == "compressible" else "none"
+    return (f"| {viscosity:g} | {label} | {sound} | {len(t)} | {drag:.4f} | {drag_ref:.4f} | "
             f"{100 * (drag / drag_ref - 1):+.1f} % | {side:+.4f} | {side_ref:+.4f} | {100 * deviation / scale:.1f} % | "
             f"{100 * noise / scale:.1f} % |")
 
@@ -239,18 +245,23 @@ def main() -> None:
     parser.add_argument("--checks", nargs="+",
                         default=["couette", "power_law", "translate", "buoyancy2d", "rest3d"])
     parser.add_argument("--rest-time", type=float, default=8.0, help="duration of the rest3d check [s]")
+    parser.add_argument("--numerics", nargs="+", help="run only the numerics whose labels start with these "
+                        "(e.g. projection; default: all)")
     parser.add_argument("--reference-dir", type=Path, default=Path("outputs/stir-reference"),
                         help="where the stir check keeps its finite-element references")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    pick = (lambda configs: {k: v for k, v in configs.items() if any(k.startswith(n) for n in args.numerics)}
+            ) if args.numerics else (lambda configs: configs)
+    configs = pick(CONFIGS)
     print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f} at start, torch {torch.__version__}, 1 thread, float32")
     checks = {
-        "couette": lambda: [couette(config, label) for label, config in CONFIGS.items()],
-        "power_law": lambda: [power_law_couette(config, label) for label, config in CONFIGS.items()],
+        "couette": lambda: [couette(config, label) for label, config in configs.items()],
+        "power_law": lambda: [power_law_couette(config, label) for label, config in configs.items()],
         "translate": lambda: [translating(config, label, mu) for mu in (0.5, 1.0, 3.0)
-                              for label, config in CONFIGS.items()],
-        "buoyancy2d": lambda: [buoyancy_2d(config, label) for label, config in CONFIGS.items()],
+                              for label, config in configs.items()],
+        "buoyancy2d": lambda: [buoyancy_2d(config, label) for label, config in configs.items()],
         "convergence": lambda: [check(DEFAULT.replace(dx=dx), f"default, dx = {dx * 1e3:g} mm")
                                 for dx in (0.005, 0.0025, 0.002, 0.0016)
                                 for check in (couette, power_law_couette, translating)],
@@ -264,9 +275,9 @@ def main() -> None:
         for label, value, reference in checks[name]():
             print(f"| {label} | {value:.5g} | {reference:.5g} | {value / reference:.3f} |", flush=True)
     if "stir" in args.checks:
-        stir(args.reference_dir, STIR_CONFIGS, STIR_VISCOSITIES)
+        stir(args.reference_dir, pick(STIR_CONFIGS), STIR_VISCOSITIES)
     if "stir_convergence" in args.checks:
-        stir(args.reference_dir, STIR_CONVERGENCE, (1.0,))
+        stir(args.reference_dir, pick(STIR_CONVERGENCE), (1.0,))
     if "numerical_viscosity" in args.checks:
         print("\n| Δt [ms] | numerical viscosity, default [m²/s] | APIC alone (flip 0) [m²/s] |\n|---|---|---|")
         for dt in (1e-3, 2.5e-4, 1e-4, 6e-5):  # s

@@ -314,6 +314,11 @@ class GhostOperator:
         return cls(target=band.target, source=band.source, weight=w, matrix=band.matrix, offset=offset,
                    active=active)
 
+    def without_offset(self) -> "GhostOperator":
+        """The linear part: the ghost velocities with the wall at rest."""
+        return GhostOperator(self.target, self.source, self.weight, self.matrix, torch.zeros_like(self.offset),
+                             self.active)
+
     def __call__(self, v: Tensor) -> Tensor:
         """``v`` (num_nodes, d) with the ghost velocities of the targets in place [m/s]."""
         q, k = self.source.shape

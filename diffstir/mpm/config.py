@@ -41,6 +41,11 @@ class SimConfig:
             grid measures (``diffstir.mpm.packing``); 0 leaves each particle's J to its own velocity divergence,
             which drifts. Longer than the acoustic crossing of a particle's stencil, 3 dx / c, so that the packing's
             noise is not fed into the sound waves, and far shorter than the drift (seconds).
+        pressure: ``"compressible"``: the pressure follows the particles' compression at the sound speed above;
+            ``"projection"``: it is solved each step to keep the grid's velocity divergence-free
+            (``diffstir.mpm.projection``), so no sound speed limits the step (the flow's Courant number,
+            ``cfl * dx / max rod speed``, does) and none compresses the fluid. ``volume_relaxation`` is then the
+            time over which the cells' fill relaxes back to one. 2-D only for now.
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
@@ -65,6 +70,7 @@ class SimConfig:
     viscosity_cap: float = 20.0
     flip: float = 0.95
     volume_relaxation: float = 0.05
+    pressure: Literal["compressible", "projection"] = "compressible"
     dt_max: float = 1e-3
     dt: float | None = None
     headroom: float = 0.02
@@ -94,6 +100,11 @@ class SimConfig:
         if not self.volume_relaxation >= 0:
             raise ValueError(f"sim.volume_relaxation = {self.volume_relaxation!r}; expected a time >= 0 in s "
                              "(0: no relaxation)")
+        if self.pressure not in ("compressible", "projection"):
+            raise ValueError(f"sim.pressure = {self.pressure!r}; expected 'compressible' or 'projection'")
+        if self.pressure == "projection" and self.dim == 3:
+            raise ValueError("sim.pressure = 'projection' is built and validated for the 2-D slice only (a closed "
+                             "domain, no free surface; docs/validation.md); use sim.pressure=compressible in 3-D")
         if self.compressibility is not None and not 0 < self.compressibility < 0.5:
             raise ValueError(f"sim.compressibility = {self.compressibility!r}; expected a relative density change "
                              "between 0 and 0.5 (e.g. 0.01), or null to keep sim.sound_speed")
@@ -123,5 +134,5 @@ class SimConfig:
 
 #: The settings of ``SimConfig.numerics``; records written before 2026-11-24 lack the last three, and had then the
 #: values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound speed).
-NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation")
-FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0}
+NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure")
+FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible"}

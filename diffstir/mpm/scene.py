@@ -78,6 +78,7 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
         rod_points=rod_fill_points(rod, dx, rod_spacing, rig.rod.immersion_depth + config.headroom + 2 * dx, d,
                                    dtype, device),
         rod_point_mass=density * rod_spacing ** d,
+        projection=config.pressure == "projection",
     )
 
 
@@ -123,7 +124,8 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
     state = seed_particles(scene, rig, config, pose)
     if config.settle_time <= 0:
         return state
-    scene = replace(scene, bulk_modulus=density * config.sound_speed**2)  # a rollout may have raised it
+    # a rollout may have raised the bulk modulus; a projection's fluid settles as the compressible one
+    scene = replace(scene, bulk_modulus=density * config.sound_speed**2, projection=False)
     key = _settle_key(rig, config, density, pose)
     root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
     path = root / "settled" / f"{key}.pt"

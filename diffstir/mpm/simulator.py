@@ -110,7 +110,8 @@ class StirringSimulator(nn.Module):
         return max(cfg.sound_speed, math.sqrt(pressure / (self.density * cfg.compressibility)))
 
     def time_step(self, trajectory: Trajectory) -> float:
-        """The explicit step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``),
+        """The explicit step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``; with
+        a projection the flow's limit cfl·dx/u_max),
         the viscous limit safety·ρ dx²/(2 d η_max) and ``dt_max``, shortened so that it divides the trajectory's
         duration."""
         cfg = self.config
@@ -119,7 +120,8 @@ class StirringSimulator(nn.Module):
         else:
             u_max = trajectory.max_speed(self.rig.rod.radius)
             eta_max = min(self.material.max_viscosity(SHEAR_RATE_SCALE * u_max / cfg.dx + 1.0), self.viscosity_cap)
-            dt = min(cfg.cfl * cfg.dx / (self.sound_speed(trajectory) + u_max),
+            signal = u_max if cfg.pressure == "projection" else self.sound_speed(trajectory) + u_max
+            dt = min(cfg.cfl * cfg.dx / max(signal, 1e-12),
                      cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12)), cfg.dt_max)
         steps = max(1, math.ceil(trajectory.duration / dt - 1e-9))
         return trajectory.duration / steps
@@ -142,7 +144,7 @@ class StirringSimulator(nn.Module):
         times = trajectory.t[0] + dt * np.arange(steps + 1)
         poses = self._poses(trajectory, times)
         state = initial if initial is not None else self.initial_state(trajectory)
-        self.scene.bulk_modulus = self.density * self.sound_speed(trajectory) ** 2
+        self.scene.bulk_modulus = 0.0 if self.scene.projection else self.density * self.sound_speed(trajectory) ** 2
         forces, torques, snapshots, snapshot_times = [], [], [], []
         segment = self.config.checkpoint_every or steps
         for start in range(0, steps, segment):

@@ -19,9 +19,10 @@ from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow,
                          rod_sdf, rod_velocity)
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
-from .packing import deposit, packed_volume_ratio, place_rod_points
+from .packing import SURFACE_FILL, deposit, packed_volume_ratio, place_rod_points
+from .projection import Projection, divergence, divergence_transpose, solve_pressure
 from .state import State
-from .viscous import CellStencil, cell_any, cell_min, cell_velocity_gradient, nodal_forces
+from .viscous import CellStencil, cell_any, cell_mean, cell_min, cell_velocity_gradient, nodal_forces
 
 MASS_FLOOR = 1e-12  # kg: nodes lighter than this carry no fluid
 
@@ -60,6 +61,8 @@ class Scene:
             (2-D: [kg/m]), (num_nodes,) (``packing.cup_solid_mass``).
         rod_points: virtual particles filling the rod near its surface, in the rod's frame [m], (R, d), each of
             mass ``rod_point_mass`` [kg] (2-D: [kg/m]) (``packing.rod_fill_points``).
+        projection: the pressure keeps the grid's velocity divergence-free (``projection``) instead of following
+            the particles' compression (``bulk_modulus`` is then 0).
     """
 
     grid: Grid
@@ -89,6 +92,7 @@ class Scene:
     rod_points: Tensor
     rod_point_mass: float
     rod_slip_length: float | Tensor = 0.0
+    projection: bool = False
 
     @property
     def dim(self) -> int:
@@ -166,9 +170,10 @@ class GridUpdate(NamedTuple):
 
 
 def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
-                material_state: Tensor | None = None) -> GridUpdate:
-    """Node velocities after gravity, the shear stress and the cup's and rod's boundary conditions, with the fluid's
-    force and torque on the rod.
+                material_state: Tensor | None = None, node_fill: Tensor | None = None) -> GridUpdate:
+    """Node velocities after gravity, the shear stress, the pressure (with ``scene.projection``, which needs the
+    nodes' ``node_fill``) and the cup's and rod's boundary conditions, with the fluid's force and torque on the
+    rod.
 
     With a ``material_state`` (``State.material``), the material is called as
     ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state.
@@ -192,16 +197,40 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     f_shear = nodal_forces(stress, cell_volume, scene.cells, grid.num_nodes)
     inertia = mass.clamp_min(scene.node_mass)[:, None]  # lighter nodes (walls, surface) get the bulk's inertia
     v_visc = torch.where(has_mass[:, None], v + dt * f_shear / inertia, 0.0)
+    f_stress = f_shear
+    if scene.projection:
+        v_visc, f_pressure = project(scene, v_visc, inertia, has_mass & ~solid, solid, node_fill, cup_ghosts,
+                                     rod_ghosts, dt)
+        f_stress = f_shear + f_pressure
     v_new = rod_ghosts(cup_ghosts(v_visc))
 
-    # the fluid's force on the rod is the rod's reaction on its ghost nodes: the shear stress on them less the
-    # momentum the boundary condition gives the fluid mass they carry (pressure and gravity are in v)
-    reaction = f_shear[window] - mass[window, None] * (v_new[window] - v[window]) / dt
+    # the fluid's force on the rod is the rod's reaction on its ghost nodes: the stress's node forces on them less
+    # the momentum the boundary condition gives the fluid mass they carry (with a sound speed, the pressure's
+    # force and gravity are in v)
+    reaction = f_stress[window] - mass[window, None] * (v_new[window] - v[window]) / dt
     on_rod = torch.where(in_rod[:, None], reaction, 0.0)
     force = on_rod.sum(0)
     arm = scene.nodes[window, :2] - pose.axis
     torque = (arm[:, 0] * on_rod[:, 1] - arm[:, 1] * on_rod[:, 0]).sum()
     return GridUpdate(v_new, force, torque, material_state)
+
+
+def project(scene: Scene, v: Tensor, inertia: Tensor, fluid: Tensor, solid: Tensor, node_fill: Tensor,
+            cup_ghosts: GhostOperator, rod_ghosts: GhostOperator, dt: float) -> tuple[Tensor, Tensor]:
+    """The node velocities ``v`` [m/s] made divergence-free by the pressure (``projection``), with the pressure's
+    node forces Σ_c p_c V_c ∇N_i(x_c) [N] (2-D: [N/m]), (num_nodes, d), which on the rod's nodes are part of its
+    reaction. A cell carries a pressure where each corner is solid or at least ``SURFACE_FILL`` full
+    (``node_fill``) and one is fluid; ``inertia``: the nodes' masses [kg], (num_nodes, 1)."""
+    full = solid | (node_fill >= SURFACE_FILL)
+    pressure_cell = (cell_min(full.to(v.dtype), scene.cells) * cell_any(fluid, scene.cells)).to(v.dtype)
+    operator = Projection.of(scene.cells, scene.grid.num_nodes, torch.where(fluid[:, None], 1.0 / inertia, 0.0),
+                             pressure_cell, cup_ghosts, rod_ghosts, scene.node_mass)
+    source = scene.relaxation_rate * (cell_mean(node_fill, scene.cells) - 1.0)
+    # the 2-D slice has no free surface: its volume is fixed, so only the fill's variation can relax
+    source = source - (source * pressure_cell).sum() / pressure_cell.sum()
+    impulse = solve_pressure(operator, (source - divergence(operator.extend(v), scene.cells)) * pressure_cell)
+    force = divergence_transpose(impulse * pressure_cell, scene.cells, scene.grid.num_nodes) / dt
+    return v + operator.impulse(impulse), force
 
 
 def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float, v_before: Tensor | None = None,
@@ -246,14 +275,14 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     (in 2-D both per unit length of rod: [N/m], [N]).
     """
     buffer, st = p2g(scene, state, dt)
-    grid = grid_update(scene, material, buffer, pose, dt, state.material)
     d, mass = scene.dim, buffer[:, scene.dim]
+    fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 or scene.projection else None
+    grid = grid_update(scene, material, buffer, pose, dt, state.material, fill)
     v_before = None
     if scene.flip > 0:
         v_before = torch.where((mass > MASS_FLOOR)[:, None], buffer[:, d + 1:] / mass.clamp_min(MASS_FLOOR)[:, None],
                                0.0)
-    fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 else None
-    new = g2p(scene, st, grid.velocity, state, dt, v_before, fill)
+    new = g2p(scene, st, grid.velocity, state, dt, v_before, None if scene.projection else fill)
     new.material = grid.material
     tip_rate = pose.velocity[2] if scene.dim == 3 else 0.0
     end_pose = RodPose(axis=pose.axis + 0.5 * dt * pose.velocity[:2], tip=pose.tip + 0.5 * dt * tip_rate,

@@ -13,6 +13,7 @@ profile at typical steps; see docs/validation.md).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -28,15 +29,21 @@ class CellStencil:
     Attributes:
         corners: flat node index of each cell's 2^d corners, (cells, 2^d) int64.
         grad: shape-function gradients at the cell centre ∇N_i(x_c) = s_i / (2^(d−1) dx) [1/m], (2^d, d).
+        faces: the pairs of cells that share a face, (F, 2) int64.
     """
 
     corners: Tensor
     grad: Tensor
+    faces: Tensor
 
     @classmethod
     def of(cls, grid: Grid) -> "CellStencil":
         sign = 2.0 * grid.stencil_offsets(2).to(grid.origin.dtype) - 1.0
-        return cls(corners=grid.cell_corners(), grad=sign / (2 ** (grid.dim - 1) * grid.dx))
+        shape = [n - 1 for n in grid.shape]
+        index = torch.arange(math.prod(shape), device=grid.origin.device).view(shape)
+        faces = [torch.stack([index.narrow(a, 0, n - 1).reshape(-1), index.narrow(a, 1, n - 1).reshape(-1)], 1)
+                 for a, n in enumerate(shape)]
+        return cls(corners=grid.cell_corners(), grad=sign / (2 ** (grid.dim - 1) * grid.dx), faces=torch.cat(faces))
 
 
 def cell_velocity_gradient(v: Tensor, cells: CellStencil) -> Tensor:
@@ -60,6 +67,11 @@ def nodal_forces(stress: Tensor, cell_volume: Tensor, cells: CellStencil, num_no
 def cell_min(node_values: Tensor, cells: CellStencil) -> Tensor:
     """The smallest of each cell's corner values, (cells,)."""
     return node_values[cells.corners].amin(dim=1)
+
+
+def cell_mean(node_values: Tensor, cells: CellStencil) -> Tensor:
+    """The mean of each cell's corner values, (cells,)."""
+    return node_values[cells.corners].mean(dim=1)
 
 
 def cell_any(node_mask: Tensor, cells: CellStencil) -> Tensor:

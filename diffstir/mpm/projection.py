@@ -1,0 +1,256 @@
+"""The pressure of an incompressible fluid, solved on the grid each step (a projection), instead of a sound speed.
+
+The weakly compressible fluid's pressure comes from its compression, κ/2 (J − 1/J); a viscous stir's pressure then
+compresses it by δ = p/κ and the drag reads low unless κ is raised, which shortens the step and adds noise
+(docs/validation.md). Here the pressure is the Lagrange multiplier that keeps the grid's velocity divergence-free.
+With the bilinear (trilinear) cells of ``viscous`` and one pressure per cell (the Q1-P0 element), the discrete
+divergence of cell c is
+
+    D_c(v) = Σ_i ∇N_i(x_c) · v_i^ext,        v^ext = E(v) = R(C(v))   (the cup's and the rod's ghost velocities),
+
+and the step's velocity v* is projected, with the node masses M, onto D(v) = s:
+
+    v = v* + M⁻¹ Lᵀ π,        A π = (L M⁻¹ Lᵀ) π = s − D(E(v*)),        L = D E_lin,
+
+with π_c = Δt V_c p_c the cell's pressure impulse [N·s·m] (2-D: per unit length, [N·s]), V_c = dx^d, p_c [Pa],
+and E_lin the ghost map without its wall velocities. The source s = (φ_c − 1)/τ [1/s] lets the cell's fill φ_c
+(``packing``) relax to one over τ (``SimConfig.volume_relaxation``), undoing the slow drift in the particles'
+spacing that a divergence-free grid velocity cannot see. Cells with a corner less than half full (a free
+surface) carry no pressure. The pressure's node forces Σ_c π_c ∇N_i(x_c) / Δt act on the rod's nodes as the
+shear stress's do, so that the rod's reaction (``step.grid_update``) counts both alike.
+
+Q1-P0 has a spurious pressure mode, the checkerboard (−1)^(i+j), that D Dᵀ does not see inside the fluid: left
+alone it grows from the particles' noise to several times the pressure and shakes the rod's force. The operator
+is therefore stabilised, A + ε G², with G the cells' face graph Laplacian: G² weighs the checkerboard by (4d)²
+and a smooth pressure of wavenumber k by (k dx)⁴, so ε = β diag(A)/(4d)² gives the checkerboard β times the
+weight of a cell inside the fluid and leaves a divergence of relative order β (k dx)²/(4d)² unremoved. β = 0.1:
+a smooth divergence is removed to 1-2 %, the sharp one the moving rod causes in the cells beside it to 6 %
+(β = 1 left 22 % there), and the stir's drag moved by less than 1 % between β = 0, 0.1 and 1
+(docs/validation.md).
+
+A is symmetric positive definite (the ghost velocities pin the constant pressure). It is assembled each step as a
+sparse matrix and factorised (``PressureSolver``). Gradients: the solve is differentiated implicitly,
+dπ = A⁻¹ (ds − dA π), by one more solve in the backward pass (``_ImplicitSolve``), not through a solver's
+iterations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy import sparse
+from scipy.sparse.linalg import splu
+from torch import Tensor
+
+from .boundaries import GhostOperator
+from .viscous import CellStencil
+
+STABILISATION = 0.1  # β: the checkerboard's weight in the stabilised operator, over A's diagonal (module docstring)
+TOLERANCE = 1e-10  # relative residual at which conjugate gradients stop (devices other than the CPU)
+MAX_ITERATIONS = 2000
+
+
+def divergence(v: Tensor, cells: CellStencil) -> Tensor:
+    """D_c(v) = Σ_i ∇N_i(x_c) · v_i [1/s] at every cell centre, (cells,), from node velocities v (num_nodes, d)."""
+    k, d = cells.grad.shape
+    corner_v = v.index_select(0, cells.corners.view(-1)).view(-1, k * d)
+    return corner_v @ cells.grad.reshape(-1)
+
+
+def divergence_transpose(p: Tensor, cells: CellStencil, num_nodes: int) -> Tensor:
+    """Dᵀ p: Σ_c p_c ∇N_i(x_c) on every node, (num_nodes, d), from cell values p (cells,)."""
+    k, d = cells.grad.shape
+    per_corner = (p[:, None, None] * cells.grad).view(-1, d)
+    return torch.zeros(num_nodes, d, dtype=p.dtype, device=p.device).index_add_(0, cells.corners.view(-1),
+                                                                                per_corner)
+
+
+def ghost_transpose(op: GhostOperator, u: Tensor) -> Tensor:
+    """The transpose of ``op``'s linear part, applied to node vectors u (num_nodes, d): what a cotangent on the ghost
+    nodes puts on the fluid nodes their velocities were extrapolated from."""
+    q, k = op.source.shape
+    on_target = u.index_select(0, op.target)
+    active = torch.ones(q, dtype=torch.bool, device=u.device) if op.active is None else op.active
+    back = torch.where(active[:, None], (op.matrix.transpose(1, 2) @ on_target[:, :, None]).squeeze(-1), 0.0)
+    kept = u.index_copy(0, op.target, torch.where(active[:, None], 0.0, on_target))
+    return kept.index_add(0, op.source.view(-1), (op.weight[:, :, None] * back[:, None, :]).view(q * k, -1))
+
+
+@dataclass
+class Projection:
+    """The step's projection operator A = L M⁻¹ Lᵀ over the pressure cells (module docstring).
+
+    Attributes:
+        cells: the grid's cells.
+        num_nodes: node count.
+        mobility: 1/m_i on the fluid's nodes and 0 elsewhere [1/kg], (num_nodes, 1).
+        pressure_cell: which cells carry a pressure, (cells,) float 0/1.
+        cup, rod: the ghost operators (the cup's is applied first).
+        stabilisation: ε of the checkerboard penalty ε G² (module docstring) [units of A].
+    """
+
+    cells: CellStencil
+    num_nodes: int
+    mobility: Tensor
+    pressure_cell: Tensor
+    cup: GhostOperator
+    rod: GhostOperator
+    stabilisation: float
+
+    @classmethod
+    def of(cls, cells: CellStencil, num_nodes: int, mobility: Tensor, pressure_cell: Tensor, cup: GhostOperator,
+           rod: GhostOperator, node_mass: float) -> "Projection":
+        """The projection with ε = β diag(A)/(4d)², diag(A) = 2^d d / (4^(d−1) dx² m) that of a cell inside the
+        fluid, ``node_mass`` m [kg] (2-D: [kg/m]), β = ``STABILISATION``."""
+        d = cells.grad.shape[1]
+        diagonal = float((cells.grad**2).sum()) / node_mass
+        return cls(cells, num_nodes, mobility, pressure_cell, cup, rod, STABILISATION * diagonal / (4 * d) ** 2)
+
+    def extend(self, v: Tensor) -> Tensor:
+        """E(v): the node velocities with the ghosts' in place, wall terms included."""
+        return self.rod(self.cup(v))
+
+    def impulse(self, p: Tensor) -> Tensor:
+        """M⁻¹ Lᵀ p: the velocity change [m/s] of the fluid's nodes under pressure impulses p, (num_nodes, d)."""
+        cotangent = divergence_transpose(p * self.pressure_cell, self.cells, self.num_nodes)
+        return self.mobility * ghost_transpose(self.cup, ghost_transpose(self.rod, cotangent))
+
+    def constrained_divergence(self, v: Tensor) -> Tensor:
+        """L v without wall terms, on the pressure cells only."""
+        linear = self.rod.without_offset()(self.cup.without_offset()(v))
+        return divergence(linear, self.cells) * self.pressure_cell
+
+    def face_laplacian(self, p: Tensor) -> Tensor:
+        """G p = Σ over faces shared with another pressure cell of (p_c − p_c'), (cells,)."""
+        first, second = self.cells.faces.unbind(1)
+        jump = (p[first] - p[second]) * self.pressure_cell[first] * self.pressure_cell[second]
+        return torch.zeros_like(p).index_add(0, first, jump).index_add(0, second, -jump)
+
+    def __call__(self, p: Tensor) -> Tensor:
+        return (self.constrained_divergence(self.impulse(p))
+                + self.stabilisation * self.face_laplacian(self.face_laplacian(p)))
+
+    def matrix(self) -> sparse.csr_matrix:
+        """A over the pressure cells (the others' rows and columns are empty), assembled (detached, float64, CPU):
+        L = D E_lin, with E_lin the identity but on the ghosts' active targets, whose rows hold W_qc G_q."""
+        cells, d = self.cells, self.cells.grad.shape[1]
+        n_dof = self.num_nodes * d
+        k = cells.corners.shape[1]
+        rows = torch.arange(cells.corners.shape[0], device=cells.corners.device)[:, None, None].expand(-1, k, d)
+        cols = cells.corners[:, :, None] * d + torch.arange(d, device=cells.corners.device)
+        values = cells.grad.expand(cells.corners.shape[0], k, d)
+        keep = self.pressure_cell.detach().bool()
+        div = sparse.csr_matrix((_np(values[keep]).ravel(), (_np(rows[keep]).ravel(), _np(cols[keep]).ravel())),
+                                shape=(cells.corners.shape[0], n_dof))
+        ghost_rows, ghost_cols, ghost_values, targets = [], [], [], []
+        for op in (self.cup, self.rod):
+            active = op.target if op.active is None else op.target[op.active]
+            q_index = torch.arange(op.target.shape[0], device=op.target.device)
+            q_index = q_index if op.active is None else q_index[op.active]
+            w, g = op.weight.detach()[q_index], op.matrix.detach()[q_index]  # (Q, K'), (Q, d, d)
+            entries = w[:, None, :, None] * g[:, :, None, :]  # (Q, a, K', b)
+            ghost_rows.append((active[:, None, None, None] * d + torch.arange(d, device=w.device)[:, None, None]
+                               ).expand_as(entries).reshape(-1))
+            ghost_cols.append((op.source[q_index][:, None, :, None] * d + torch.arange(d, device=w.device)
+                               ).expand_as(entries).reshape(-1))
+            ghost_values.append(entries.reshape(-1))
+            targets.append((active[:, None] * d + torch.arange(d, device=w.device)).reshape(-1))
+        identity = np.ones(n_dof)
+        identity[_np(torch.cat(targets))] = 0.0
+        extension = (sparse.diags(identity) + sparse.csr_matrix(
+            (_np(torch.cat(ghost_values)), (_np(torch.cat(ghost_rows)), _np(torch.cat(ghost_cols)))),
+            shape=(n_dof, n_dof)))
+        constraint = (div @ extension).tocsr()
+        mobility = np.repeat(_np(self.mobility[:, 0]), d)
+        first, second = _np(cells.faces).T
+        both = keep.cpu().numpy()[first] & keep.cpu().numpy()[second]
+        n_face, n_cell = int(both.sum()), cells.corners.shape[0]
+        incidence = sparse.csr_matrix((np.r_[np.ones(n_face), -np.ones(n_face)],
+                                       (np.r_[np.arange(n_face), np.arange(n_face)], np.r_[first[both], second[both]])),
+                                      shape=(n_face, n_cell))
+        laplacian = incidence.T @ incidence
+        return (constraint @ sparse.diags(mobility) @ constraint.T + self.stabilisation * laplacian @ laplacian).tocsr()
+
+
+def _np(t: Tensor) -> np.ndarray:
+    return t.detach().cpu().numpy().astype(np.float64 if t.is_floating_point() else np.int64)
+
+
+class PressureSolver:
+    """x = A⁻¹ b for the step's assembled A (``Projection.matrix``), on the pressure cells; zero on the others.
+
+    ``method`` ``"lu"``: a sparse LU factorisation (SuperLU, float64, on the CPU; about 2 ms for the 2-D default's
+    900 cells), which the backward pass's solve reuses. ``"cg"``: Jacobi-preconditioned conjugate gradients with
+    A as a sparse tensor on the pressure's device. None: LU on the CPU, CG elsewhere.
+    """
+
+    def __init__(self, matrix: sparse.csr_matrix, pressure_cell: Tensor, method: str | None = None):
+        self.keep = pressure_cell.detach().bool()
+        self.device = pressure_cell.device
+        self.method = method or ("lu" if self.device.type == "cpu" else "cg")
+        keep = self.keep.cpu().numpy()
+        sub = matrix[keep][:, keep]
+        if self.method == "lu":
+            self.lu = splu(sub.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        elif self.method == "cg":
+            sub = sub.tocoo()
+            self.sparse = torch.sparse_coo_tensor(np.stack([sub.row, sub.col]), sub.data, sub.shape,
+                                                  device=self.device, check_invariants=False).coalesce()
+            self.inverse_diagonal = torch.as_tensor(1.0 / sub.diagonal(), device=self.device)
+        else:
+            raise ValueError(f"method = {method!r}; expected 'lu', 'cg' or None")
+
+    def __call__(self, rhs: Tensor) -> Tensor:
+        b = rhs.detach()[self.keep]
+        if self.method == "lu":
+            x = torch.from_numpy(self.lu.solve(b.double().cpu().numpy())).to(rhs.device)
+        else:
+            x = conjugate_gradient(lambda y: torch.mv(self.sparse, y), b.double(), self.inverse_diagonal)
+        return torch.zeros_like(rhs).index_put((self.keep,), x.to(rhs.dtype))
+
+
+def conjugate_gradient(operator, rhs: Tensor, inverse_diagonal: Tensor, tolerance: float = TOLERANCE,
+                       max_iterations: int = MAX_ITERATIONS) -> Tensor:
+    """Solve operator(x) = rhs for a symmetric positive definite ``operator`` by conjugate gradients, preconditioned
+    by ``inverse_diagonal``; stops at the relative residual ``tolerance``."""
+    x = torch.zeros_like(rhs)
+    r = rhs.clone()
+    stop = tolerance * rhs.norm()
+    z = inverse_diagonal * r
+    direction, rz = z, torch.dot(r, z)
+    for _ in range(max_iterations):
+        if r.norm() <= stop:
+            break
+        a_d = operator(direction)
+        alpha = rz / torch.dot(direction, a_d)
+        x, r = x + alpha * direction, r - alpha * a_d
+        z = inverse_diagonal * r
+        rz, previous = torch.dot(r, z), rz
+        direction = z + (rz / previous) * direction
+    return x
+
+
+class _ImplicitSolve(torch.autograd.Function):
+    """x = A⁻¹ r with the backward pass g ↦ A⁻¹ g (A symmetric), by a ``PressureSolver``."""
+
+    @staticmethod
+    def forward(ctx, rhs: Tensor, solver: PressureSolver) -> Tensor:
+        ctx.solver = solver
+        return solver(rhs)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        return ctx.solver(grad), None
+
+
+def solve_pressure(projection: Projection, rhs: Tensor) -> Tensor:
+    """π with A π = rhs on the pressure cells (module docstring); differentiable in ``rhs`` and in A's tensors by the
+    implicit function theorem: π = π₀ + A⁻¹ (rhs − A π₀), with π₀ the solution held constant."""
+    solver = PressureSolver(projection.matrix(), projection.pressure_cell)
+    p = solver(rhs)
+    if not torch.is_grad_enabled():
+        return p
+    residual = rhs - projection(p)  # zero, but differentiable
+    return p + _ImplicitSolve.apply(residual, solver) if residual.requires_grad else p
