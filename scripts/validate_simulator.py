@@ -2,7 +2,7 @@
 
     python scripts/validate_simulator.py [--checks couette power_law translate buoyancy2d convergence rest3d stir
                                                    stir_convergence stir_sound_speed stir_history
-                                                   numerical_viscosity]
+                                                   stir_drift numerical_viscosity]
         [--rest-time 8] [--reference-dir DIR] [--numerics LABEL ...]
 
 Every 2-D check runs the fitting default (conf/sim/slice2d.yaml: 2.5 mm cells, a FLIP share of 0.95, J relaxed
@@ -37,6 +37,9 @@ the numerics whose labels start with the given words.
   by default).
 - stir_sound_speed: the stir at 1 Pa s with the default's numerics at fixed sound speeds of 2, 4, 8 and 16 m/s
   (not run by default).
+- stir_drift: the stir at 0.2 Pa s held for 4 s (against a 4 s reference), the default and the projection with
+  the fill relaxed over 50 ms, 0.5 s and not at all: the drag per second and how evenly the particles fill the
+  cup at the end (not run by default).
 - stir_history: the stir at 1 Pa s (the default, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
   time windows: the drag and radial force against the reference's, and the particles next to the rod (within half
   a cell and from half a cell to one cell of its surface, per area, over the resting fluid's), and the fluid's
@@ -65,6 +68,9 @@ from problems import (couette_torque_newtonian, couette_torque_power_law, fittin
 import numpy as np  # noqa: E402
 
 from diffstir.mpm import SimConfig, StirringSimulator  # noqa: E402
+from diffstir.mpm.boundaries import RodPose  # noqa: E402
+from diffstir.mpm.packing import deposit  # noqa: E402
+from diffstir.mpm.step import node_fill  # noqa: E402
 from diffstir.rheology import Newtonian, PowerLaw  # noqa: E402
 from diffstir.rig import Rig  # noqa: E402
 from diffstir.trajectory import circle, spin, stationary, translate  # noqa: E402
@@ -81,6 +87,8 @@ STIR_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressib
 STIR_SOUND_SPEEDS = {f"default, c = {c:g} m/s": DEFAULT.replace(compressibility=None, sound_speed=c)
                      for c in (2.0, 4.0, 8.0, 16.0)}  # m/s
 STIR_VISCOSITIES = (0.05, 0.2, 1.0, 3.0)  # Pa s
+DRIFT_CONFIGS = {"default": DEFAULT, **{f"projection{'' if tau == 0.05 else f', relaxation {tau:g} s'}":
+                                        PROJECTION.replace(volume_relaxation=tau) for tau in (0.05, 0.5, 0.0)}}
 HISTORY_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
                    "default, APIC (flip 0)": DEFAULT.replace(flip=0.0),
                    "default, relaxation 10 ms": DEFAULT.replace(volume_relaxation=0.01)}
@@ -149,14 +157,15 @@ def rest3d(duration: float) -> list[tuple[str, float, float]]:
     return rows
 
 
-def stir_reference(viscosity: float, directory: Path) -> dict:
-    """The finite-element reference of the paper's stir at ``viscosity`` [Pa s], computed once into ``directory``."""
-    path = directory / f"stir_{viscosity:g}.npz"
+def stir_reference(viscosity: float, directory: Path, duration: float = 1.5) -> dict:
+    """The finite-element reference of the paper's stir at ``viscosity`` [Pa s] for ``duration`` [s], computed once
+    into ``directory``."""
+    path = directory / (f"stir_{viscosity:g}.npz" if duration == 1.5 else f"stir_{viscosity:g}_{duration:g}s.npz")
     if not path.exists() or "angular_momentum" not in np.load(path):  # made before it was recorded
         from stir_reference import stir  # scripts/stir_reference.py; needs scikit-fem
 
         directory.mkdir(parents=True, exist_ok=True)
-        np.savez(path, **stir(viscosity, step=0.0005 if viscosity < 0.1 else 0.002))
+        np.savez(path, **stir(viscosity, duration=duration, step=0.0005 if viscosity < 0.1 else 0.002))
     return dict(np.load(path))
 
 
@@ -223,6 +232,35 @@ def stir_history(directory: Path, viscosity: float = 1.0) -> None:
               f"{value:.4e} kg m²/s per m, reference {final:.4e} ({value / final:.3f})")
 
 
+def stir_drift(directory: Path, configs: dict[str, SimConfig], viscosity: float = 0.2, duration: float = 4.0) -> None:
+    """The stir held for ``duration`` [s]: the drag per second against the reference's, and how evenly the particles
+    fill the cup (the rms of the nodes' fill φ − 1 and its least value, more than two cells inside the cup)."""
+    reference = stir_reference(viscosity, directory, duration)
+    trajectory = circle(radius=0.015, speed=0.1, duration=duration)
+    windows = [(lo, lo + 1.0) for lo in np.arange(0.0, duration, 1.0)]
+    print(f"\n| numerics | {' | '.join(f'drag {lo:g}-{hi:g} s [N/m]' for lo, hi in windows)} | fill φ at "
+          f"{duration:g} s: rms of φ − 1 | least φ |\n|{'---|' * (len(windows) + 3)}")
+    ref_t, ref_drag = reference["times"], -reference["tangential"]
+    print(f"| reference | {' | '.join(f'{ref_drag[(ref_t > lo) & (ref_t <= hi)].mean():.4f}' for lo, hi in windows)}"
+          " | | |")
+    for label, config in configs.items():
+        sim = StirringSimulator(Newtonian(eta=viscosity), RIG, config, density=1000.0)
+        with torch.no_grad():
+            result = sim(trajectory)
+        t = result.times.double().numpy()
+        _, along = _orbit_components(trajectory, t, result.force.double().numpy())
+        drags = " | ".join(f"{-along[(t > lo) & (t <= hi)].mean():.4f}" for lo, hi in windows)
+        end = trajectory.poses(np.array([duration]))[0][0]
+        fill = node_fill(sim.scene, deposit(sim.scene.grid, result.state.x, sim.scene.particle_mass,
+                                            sim.scene.offset_index, sim.scene.strides, sim.scene.particle_bounds),
+                         RodPose(axis=torch.as_tensor(end, dtype=result.state.x.dtype), tip=torch.zeros(()),
+                                 angle=torch.zeros(()), velocity=torch.zeros(2), angular_velocity=torch.zeros(())))
+        inside = (sim.scene.cup_phi > 2 * config.dx) & (
+            (sim.scene.nodes - torch.as_tensor(end, dtype=sim.scene.nodes.dtype)).norm(dim=1) > RIG.rod.radius)
+        print(f"| {label} | {drags} | {float((fill[inside] - 1).pow(2).mean().sqrt()):.3f} | "
+              f"{float(fill[inside].min()):.2f} |", flush=True)
+
+
 def _orbit_components(trajectory, t: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The force [N/m] along the orbit's radius (outwards) and along the rod's motion, at times ``t`` [s]."""
     xy, _, _ = trajectory.poses(t)
@@ -287,6 +325,8 @@ def main() -> None:
         stir(args.reference_dir, STIR_SOUND_SPEEDS, (1.0,))
     if "stir_history" in args.checks:
         stir_history(args.reference_dir)
+    if "stir_drift" in args.checks:
+        stir_drift(args.reference_dir, pick(DRIFT_CONFIGS))
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ is therefore stabilised, A + ε G², with G the cells' face graph Laplacian: G²
 and a smooth pressure of wavenumber k by (k dx)⁴, so ε = β diag(A)/(4d)² gives the checkerboard β times the
 weight of a cell inside the fluid and leaves a divergence of relative order β (k dx)²/(4d)² unremoved. β = 0.1:
 a smooth divergence is removed to 1-2 %, the sharp one the moving rod causes in the cells beside it to 6 %
-(β = 1 left 22 % there), and the stir's drag moved by less than 1 % between β = 0, 0.1 and 1
+(β = 1 left 22 % there), and the stir's drag moved by less than 1.2 % between β = 0, 0.1 and 1
 (docs/validation.md).
 
 A is symmetric positive definite (the ghost velocities pin the constant pressure). It is assembled each step as a
