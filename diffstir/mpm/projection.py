@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.autograd.forward_ad as fwAD
 from scipy import sparse
 from scipy.sparse.linalg import splu
 from torch import Tensor
@@ -233,24 +234,34 @@ def conjugate_gradient(operator, rhs: Tensor, inverse_diagonal: Tensor, toleranc
 
 
 class _ImplicitSolve(torch.autograd.Function):
-    """x = A⁻¹ r with the backward pass g ↦ A⁻¹ g (A symmetric), by a ``PressureSolver``."""
+    """x = A⁻¹ r for a residual r that is zero at the solution: its value is taken as zero (the solve's round-off
+    would only make a rollout with derivatives differ from one without), its derivatives are the reverse-mode
+    g ↦ A⁻¹ g (A symmetric) and the forward-mode ṙ ↦ A⁻¹ ṙ, by a ``PressureSolver``."""
 
     @staticmethod
-    def forward(ctx, rhs: Tensor, solver: PressureSolver) -> Tensor:
+    def forward(ctx, residual: Tensor, solver: PressureSolver) -> Tensor:
         ctx.solver = solver
-        return solver(rhs)
+        return torch.zeros_like(residual)
 
     @staticmethod
     def backward(ctx, grad: Tensor):
         return ctx.solver(grad), None
 
+    @staticmethod
+    def jvp(ctx, rhs_tangent: Tensor, _):
+        return ctx.solver(rhs_tangent)
+
 
 def solve_pressure(projection: Projection, rhs: Tensor) -> Tensor:
-    """π with A π = rhs on the pressure cells (module docstring); differentiable in ``rhs`` and in A's tensors by the
-    implicit function theorem: π = π₀ + A⁻¹ (rhs − A π₀), with π₀ the solution held constant."""
+    """π with A π = rhs on the pressure cells (module docstring); differentiable, in reverse and forward mode, in
+    ``rhs`` and in A's tensors by the implicit function theorem: π = π₀ + A⁻¹ (rhs − A π₀), with π₀ the solution
+    held constant (``_ImplicitSolve``)."""
     solver = PressureSolver(projection.matrix(), projection.pressure_cell)
     p = solver(rhs)
-    if not torch.is_grad_enabled():
+    dual = any(fwAD.unpack_dual(t).tangent is not None for t in (rhs, projection.mobility))
+    if not (torch.is_grad_enabled() or dual):
         return p
     residual = rhs - projection(p)  # zero, but differentiable
-    return p + _ImplicitSolve.apply(residual, solver) if residual.requires_grad else p
+    if residual.requires_grad or dual:
+        return p + _ImplicitSolve.apply(residual, solver)
+    return p
