@@ -81,7 +81,8 @@ def ghost_transpose(op: GhostOperator, u: Tensor) -> Tensor:
 
 @dataclass
 class Projection:
-    """The step's projection operator A = L M⁻¹ Lᵀ over the pressure cells (module docstring).
+    """The step's stabilised projection operator A = L M⁻¹ Lᵀ + ε G² over the pressure cells (module docstring);
+    calling it applies A matrix-free, differentiably.
 
     Attributes:
         cells: the grid's cells.
