@@ -79,6 +79,31 @@ def ghost_transpose(op: GhostOperator, u: Tensor) -> Tensor:
     return kept.index_add(0, op.source.view(-1), (op.weight[:, :, None] * back[:, None, :]).view(q * k, -1))
 
 
+@dataclass(frozen=True)
+class CellMatrices:
+    """A grid's cell operators as sparse matrices, built once per scene (float64, for the CPU-side assembly): the
+    divergence D (cells, nodes·d) of ``divergence`` and the face incidence B (faces, cells), ±1 on each face's
+    two cells, so that G = Bᵀ B is ``Projection.face_laplacian`` over all cells."""
+
+    divergence: sparse.csr_matrix
+    incidence: sparse.csc_matrix
+
+    @classmethod
+    def of(cls, cells: CellStencil, num_nodes: int) -> "CellMatrices":
+        n_cells, k = cells.corners.shape
+        d = cells.grad.shape[1]
+        corners = _np(cells.corners)
+        rows = np.repeat(np.arange(n_cells), k * d)
+        cols = (corners[:, :, None] * d + np.arange(d)).ravel()
+        values = np.tile(_np(cells.grad).ravel(), n_cells)
+        first, second = _np(cells.faces).T
+        n_faces = len(first)
+        incidence = sparse.csc_matrix((np.r_[np.ones(n_faces), -np.ones(n_faces)],
+                                       (np.r_[np.arange(n_faces), np.arange(n_faces)], np.r_[first, second])),
+                                      shape=(n_faces, n_cells))
+        return cls(sparse.csr_matrix((values, (rows, cols)), shape=(n_cells, num_nodes * d)), incidence)
+
+
 @dataclass
 class Projection:
     """The step's stabilised projection operator A = L M⁻¹ Lᵀ + ε G² over the pressure cells (module docstring);
@@ -91,6 +116,7 @@ class Projection:
         pressure_cell: which cells carry a pressure, (cells,) float 0/1.
         cup, rod: the ghost operators (the cup's is applied first).
         stabilisation: ε of the checkerboard penalty ε G² (module docstring) [units of A].
+        matrices: the grid's ``CellMatrices``.
     """
 
     cells: CellStencil
@@ -100,15 +126,17 @@ class Projection:
     cup: GhostOperator
     rod: GhostOperator
     stabilisation: float
+    matrices: CellMatrices
 
     @classmethod
-    def of(cls, cells: CellStencil, num_nodes: int, mobility: Tensor, pressure_cell: Tensor, cup: GhostOperator,
-           rod: GhostOperator, node_mass: float) -> "Projection":
+    def of(cls, cells: CellStencil, matrices: CellMatrices, num_nodes: int, mobility: Tensor, pressure_cell: Tensor,
+           cup: GhostOperator, rod: GhostOperator, node_mass: float) -> "Projection":
         """The projection with ε = β diag(A)/(4d)², diag(A) = 2^d d / (4^(d−1) dx² m) that of a cell inside the
         fluid, ``node_mass`` m [kg] (2-D: [kg/m]), β = ``STABILISATION``."""
         d = cells.grad.shape[1]
         diagonal = float((cells.grad**2).sum()) / node_mass
-        return cls(cells, num_nodes, mobility, pressure_cell, cup, rod, STABILISATION * diagonal / (4 * d) ** 2)
+        return cls(cells, num_nodes, mobility, pressure_cell, cup, rod, STABILISATION * diagonal / (4 * d) ** 2,
+                   matrices)
 
     def extend(self, v: Tensor) -> Tensor:
         """E(v): the node velocities with the ghosts' in place, wall terms included."""
@@ -135,45 +163,33 @@ class Projection:
                 + self.stabilisation * self.face_laplacian(self.face_laplacian(p)))
 
     def matrix(self) -> sparse.csr_matrix:
-        """A over the pressure cells (the others' rows and columns are empty), assembled (detached, float64, CPU):
-        L = D E_lin, with E_lin the identity but on the ghosts' active targets, whose rows hold W_qc G_q."""
-        cells, d = self.cells, self.cells.grad.shape[1]
+        """A on the pressure cells only, in their order (detached, float64, CPU): L = D E_lin, with E_lin the
+        identity but on the ghosts' active targets, whose rows hold W_qc G_q."""
+        d = self.cells.grad.shape[1]
         n_dof = self.num_nodes * d
-        k = cells.corners.shape[1]
-        rows = torch.arange(cells.corners.shape[0], device=cells.corners.device)[:, None, None].expand(-1, k, d)
-        cols = cells.corners[:, :, None] * d + torch.arange(d, device=cells.corners.device)
-        values = cells.grad.expand(cells.corners.shape[0], k, d)
-        keep = self.pressure_cell.detach().bool()
-        div = sparse.csr_matrix((_np(values[keep]).ravel(), (_np(rows[keep]).ravel(), _np(cols[keep]).ravel())),
-                                shape=(cells.corners.shape[0], n_dof))
+        kept = np.flatnonzero(_np(self.pressure_cell) > 0)
         ghost_rows, ghost_cols, ghost_values, targets = [], [], [], []
         for op in (self.cup, self.rod):
-            active = op.target if op.active is None else op.target[op.active]
-            q_index = torch.arange(op.target.shape[0], device=op.target.device)
-            q_index = q_index if op.active is None else q_index[op.active]
-            w, g = op.weight.detach()[q_index], op.matrix.detach()[q_index]  # (Q, K'), (Q, d, d)
-            entries = w[:, None, :, None] * g[:, :, None, :]  # (Q, a, K', b)
-            ghost_rows.append((active[:, None, None, None] * d + torch.arange(d, device=w.device)[:, None, None]
-                               ).expand_as(entries).reshape(-1))
-            ghost_cols.append((op.source[q_index][:, None, :, None] * d + torch.arange(d, device=w.device)
-                               ).expand_as(entries).reshape(-1))
-            ghost_values.append(entries.reshape(-1))
-            targets.append((active[:, None] * d + torch.arange(d, device=w.device)).reshape(-1))
+            active = slice(None) if op.active is None else _np(op.active).astype(bool)
+            target, source = _np(op.target)[active], _np(op.source)[active]
+            entries = _np(op.weight)[active][:, None, :, None] * _np(op.matrix)[active][:, :, None, :]  # (Q,a,K',b)
+            ghost_rows.append(np.broadcast_to((target[:, None] * d + np.arange(d))[:, :, None, None],
+                                              entries.shape).ravel())
+            ghost_cols.append(np.broadcast_to((source[:, :, None] * d + np.arange(d))[:, None, :, :],
+                                              entries.shape).ravel())
+            ghost_values.append(entries.ravel())
+            targets.append((target[:, None] * d + np.arange(d)).ravel())
         identity = np.ones(n_dof)
-        identity[_np(torch.cat(targets))] = 0.0
-        extension = (sparse.diags(identity) + sparse.csr_matrix(
-            (_np(torch.cat(ghost_values)), (_np(torch.cat(ghost_rows)), _np(torch.cat(ghost_cols)))),
-            shape=(n_dof, n_dof)))
-        constraint = (div @ extension).tocsr()
-        mobility = np.repeat(_np(self.mobility[:, 0]), d)
-        first, second = _np(cells.faces).T
-        both = keep.cpu().numpy()[first] & keep.cpu().numpy()[second]
-        n_face, n_cell = int(both.sum()), cells.corners.shape[0]
-        incidence = sparse.csr_matrix((np.r_[np.ones(n_face), -np.ones(n_face)],
-                                       (np.r_[np.arange(n_face), np.arange(n_face)], np.r_[first[both], second[both]])),
-                                      shape=(n_face, n_cell))
+        identity[np.concatenate(targets)] = 0.0
+        extension = sparse.diags(identity, format="csr") + sparse.csr_matrix(
+            (np.concatenate(ghost_values), (np.concatenate(ghost_rows), np.concatenate(ghost_cols))),
+            shape=(n_dof, n_dof))
+        constraint = self.matrices.divergence[kept] @ extension
+        mobility = sparse.diags(np.repeat(_np(self.mobility[:, 0]), d))
+        incidence = self.matrices.incidence[:, kept].tocsr()
+        incidence = incidence[np.diff(incidence.indptr) == 2]  # the faces between two pressure cells
         laplacian = incidence.T @ incidence
-        return (constraint @ sparse.diags(mobility) @ constraint.T + self.stabilisation * laplacian @ laplacian).tocsr()
+        return (constraint @ mobility @ constraint.T + self.stabilisation * (laplacian @ laplacian)).tocsr()
 
 
 def _np(t: Tensor) -> np.ndarray:
@@ -181,7 +197,8 @@ def _np(t: Tensor) -> np.ndarray:
 
 
 class PressureSolver:
-    """x = A⁻¹ b for the step's assembled A (``Projection.matrix``), on the pressure cells; zero on the others.
+    """x = A⁻¹ b for the step's assembled A (``Projection.matrix``, on the pressure cells ``pressure_cell``), zero
+    on the other cells.
 
     ``method`` ``"lu"``: a sparse LU factorisation (SuperLU, float64, on the CPU; about 2 ms for the 2-D default's
     900 cells), which the backward pass's solve reuses. ``"cg"``: Jacobi-preconditioned conjugate gradients with
@@ -192,8 +209,7 @@ class PressureSolver:
         self.keep = pressure_cell.detach().bool()
         self.device = pressure_cell.device
         self.method = method or ("lu" if self.device.type == "cpu" else "cg")
-        keep = self.keep.cpu().numpy()
-        sub = matrix[keep][:, keep]
+        sub = matrix
         if self.method == "lu":
             self.lu = splu(sub.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
         elif self.method == "cg":

@@ -18,6 +18,7 @@ from .config import SimConfig
 from .grid import Grid
 from .materials import deviatoric_rate_of_strain
 from .packing import FINE, cup_solid_mass, rod_fill_points
+from .projection import CellMatrices
 from .state import State
 from .step import Scene, step
 from .viscous import CellStencil
@@ -78,7 +79,8 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
         rod_points=rod_fill_points(rod, dx, rod_spacing, rig.rod.immersion_depth + config.headroom + 2 * dx, d,
                                    dtype, device),
         rod_point_mass=density * rod_spacing ** d,
-        projection=config.pressure == "projection",
+        cell_matrices=(CellMatrices.of(CellStencil.of(grid), grid.num_nodes) if config.pressure == "projection"
+                       else None),
     )
 
 
@@ -125,7 +127,7 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
     if config.settle_time <= 0:
         return state
     # a rollout may have raised the bulk modulus; a projection's fluid settles as the compressible one
-    scene = replace(scene, bulk_modulus=density * config.sound_speed**2, projection=False)
+    scene = replace(scene, bulk_modulus=density * config.sound_speed**2, cell_matrices=None)
     key = _settle_key(rig, config, density, pose)
     root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
     path = root / "settled" / f"{key}.pt"

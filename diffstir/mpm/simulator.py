@@ -144,7 +144,7 @@ class StirringSimulator(nn.Module):
         times = trajectory.t[0] + dt * np.arange(steps + 1)
         poses = self._poses(trajectory, times)
         state = initial if initial is not None else self.initial_state(trajectory)
-        self.scene.bulk_modulus = 0.0 if self.scene.projection else self.density * self.sound_speed(trajectory) ** 2
+        self.scene.bulk_modulus = 0.0 if self.scene.incompressible else self.density * self.sound_speed(trajectory) ** 2
         forces, torques, snapshots, snapshot_times = [], [], [], []
         segment = self.config.checkpoint_every or steps
         for start in range(0, steps, segment):

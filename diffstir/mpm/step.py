@@ -20,7 +20,7 @@ from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow,
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
 from .packing import SURFACE_FILL, deposit, packed_volume_ratio, place_rod_points
-from .projection import Projection, divergence, divergence_transpose, solve_pressure
+from .projection import CellMatrices, Projection, divergence, divergence_transpose, solve_pressure
 from .state import State
 from .viscous import CellStencil, cell_any, cell_mean, cell_min, cell_velocity_gradient, nodal_forces
 
@@ -61,8 +61,9 @@ class Scene:
             (2-D: [kg/m]), (num_nodes,) (``packing.cup_solid_mass``).
         rod_points: virtual particles filling the rod near its surface, in the rod's frame [m], (R, d), each of
             mass ``rod_point_mass`` [kg] (2-D: [kg/m]) (``packing.rod_fill_points``).
-        projection: the pressure keeps the grid's velocity divergence-free (``projection``) instead of following
-            the particles' compression (``bulk_modulus`` is then 0).
+        cell_matrices: with an incompressible pressure, the grid's cell operators as sparse matrices
+            (``projection.CellMatrices``): the pressure keeps the grid's velocity divergence-free instead of
+            following the particles' compression (``bulk_modulus`` is then 0); None: a compressible fluid.
     """
 
     grid: Grid
@@ -92,11 +93,16 @@ class Scene:
     rod_points: Tensor
     rod_point_mass: float
     rod_slip_length: float | Tensor = 0.0
-    projection: bool = False
+    cell_matrices: CellMatrices | None = None
 
     @property
     def dim(self) -> int:
         return self.grid.dim
+
+    @property
+    def incompressible(self) -> bool:
+        """Whether the pressure is solved by a projection (``cell_matrices`` set)."""
+        return self.cell_matrices is not None
 
 
 def node_fill(scene: Scene, mass: Tensor, pose: RodPose) -> Tensor:
@@ -171,7 +177,7 @@ class GridUpdate(NamedTuple):
 
 def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
                 material_state: Tensor | None = None, node_fill: Tensor | None = None) -> GridUpdate:
-    """Node velocities after gravity, the shear stress, the pressure (with ``scene.projection``, which needs the
+    """Node velocities after gravity, the shear stress, the pressure (with ``scene.incompressible``, which needs the
     nodes' ``node_fill``) and the cup's and rod's boundary conditions, with the fluid's force and torque on the
     rod.
 
@@ -198,7 +204,7 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     inertia = mass.clamp_min(scene.node_mass)[:, None]  # lighter nodes (walls, surface) get the bulk's inertia
     v_visc = torch.where(has_mass[:, None], v + dt * f_shear / inertia, 0.0)
     f_stress = f_shear
-    if scene.projection:
+    if scene.incompressible:
         v_visc, f_pressure = project(scene, v_visc, mass, has_mass & ~solid, solid, node_fill, cup_ghosts,
                                      rod_ghosts, dt)
         f_stress = f_shear + f_pressure
@@ -227,7 +233,7 @@ def project(scene: Scene, v: Tensor, mass: Tensor, fluid: Tensor, solid: Tensor,
     full = solid | (node_fill >= SURFACE_FILL)
     pressure_cell = (cell_min(full.to(v.dtype), scene.cells) * cell_any(fluid, scene.cells)).to(v.dtype)
     mobility = torch.where(fluid, 1.0 / mass.clamp_min(MASS_FLOOR), 0.0)[:, None]
-    operator = Projection.of(scene.cells, scene.grid.num_nodes, mobility,
+    operator = Projection.of(scene.cells, scene.cell_matrices, scene.grid.num_nodes, mobility,
                              pressure_cell, cup_ghosts, rod_ghosts, scene.node_mass)
     source = scene.relaxation_rate * (cell_mean(node_fill, scene.cells) - 1.0)
     # the 2-D slice has no free surface: its volume is fixed, so only the fill's variation can relax
@@ -280,13 +286,13 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     """
     buffer, st = p2g(scene, state, dt)
     d, mass = scene.dim, buffer[:, scene.dim]
-    fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 or scene.projection else None
+    fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 or scene.incompressible else None
     grid = grid_update(scene, material, buffer, pose, dt, state.material, fill)
     v_before = None
     if scene.flip > 0:
         v_before = torch.where((mass > MASS_FLOOR)[:, None], buffer[:, d + 1:] / mass.clamp_min(MASS_FLOOR)[:, None],
                                0.0)
-    new = g2p(scene, st, grid.velocity, state, dt, v_before, None if scene.projection else fill)
+    new = g2p(scene, st, grid.velocity, state, dt, v_before, None if scene.incompressible else fill)
     new.material = grid.material
     tip_rate = pose.velocity[2] if scene.dim == 3 else 0.0
     end_pose = RodPose(axis=pose.axis + 0.5 * dt * pose.velocity[:2], tip=pose.tip + 0.5 * dt * tip_rate,
