@@ -176,10 +176,10 @@ class GridUpdate(NamedTuple):
 
 
 def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
-                material_state: Tensor | None = None, node_fill: Tensor | None = None) -> GridUpdate:
+                material_state: Tensor | None = None, packing: Tensor | None = None) -> GridUpdate:
     """Node velocities after gravity, the shear stress, the pressure (with ``scene.incompressible``, which needs the
-    nodes' ``node_fill``) and the cup's and rod's boundary conditions, with the fluid's force and torque on the
-    rod.
+    nodes' fill ``packing``, ``node_fill``) and the cup's and rod's boundary conditions, with the fluid's force and
+    torque on the rod.
 
     With a ``material_state`` (``State.material``), the material is called as
     ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state.
@@ -205,7 +205,7 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     v_visc = torch.where(has_mass[:, None], v + dt * f_shear / inertia, 0.0)
     f_stress = f_shear
     if scene.incompressible:
-        v_visc, f_pressure = project(scene, v_visc, mass, has_mass & ~solid, solid, node_fill, cup_ghosts,
+        v_visc, f_pressure = project(scene, v_visc, mass, has_mass & ~solid, solid, packing, cup_ghosts,
                                      rod_ghosts, dt)
         f_stress = f_shear + f_pressure
     v_new = rod_ghosts(cup_ghosts(v_visc))
@@ -221,21 +221,21 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     return GridUpdate(v_new, force, torque, material_state)
 
 
-def project(scene: Scene, v: Tensor, mass: Tensor, fluid: Tensor, solid: Tensor, node_fill: Tensor,
+def project(scene: Scene, v: Tensor, mass: Tensor, fluid: Tensor, solid: Tensor, packing: Tensor,
             cup_ghosts: GhostOperator, rod_ghosts: GhostOperator, dt: float) -> tuple[Tensor, Tensor]:
     """The node velocities ``v`` [m/s] made divergence-free by the pressure (``projection``), with the pressure's
     node forces Σ_c p_c V_c ∇N_i(x_c) [N] (2-D: [N/m]), (num_nodes, d), which on the rod's nodes are part of its
-    reaction. A cell carries a pressure where each corner is solid or at least ``SURFACE_FILL`` full
-    (``node_fill``) and one is fluid. ``mass``: the nodes' masses [kg] (2-D: [kg/m]), (num_nodes,); the projection
-    weighs the nodes by them, so that the pressure's impulse changes the fluid's momentum by exactly its amount
-    (the bulk inertia that the viscous update gives light nodes for stability read the stir 7 % higher at
-    0.2 Pa·s and 14 % at 0.05, docs/validation.md)."""
-    full = solid | (node_fill >= SURFACE_FILL)
+    reaction. A cell carries a pressure where each corner is solid or at least ``SURFACE_FILL`` full (``packing``,
+    the nodes' fill of ``node_fill``) and one is fluid. ``mass``: the nodes' masses [kg] (2-D: [kg/m]),
+    (num_nodes,); the projection weighs the nodes by them, so that the pressure's impulse changes the fluid's
+    momentum by exactly its amount (the bulk inertia that the viscous update gives light nodes for stability read
+    the stir 7 % higher at 0.2 Pa·s and 14 % at 0.05, docs/validation.md)."""
+    full = solid | (packing >= SURFACE_FILL)
     pressure_cell = (cell_min(full.to(v.dtype), scene.cells) * cell_any(fluid, scene.cells)).to(v.dtype)
     mobility = torch.where(fluid, 1.0 / mass.clamp_min(MASS_FLOOR), 0.0)[:, None]
     operator = Projection.of(scene.cells, scene.cell_matrices, scene.grid.num_nodes, mobility,
                              pressure_cell, cup_ghosts, rod_ghosts, scene.node_mass)
-    source = scene.relaxation_rate * (cell_mean(node_fill, scene.cells) - 1.0)
+    source = scene.relaxation_rate * (cell_mean(packing, scene.cells) - 1.0)
     # the 2-D slice has no free surface: its volume is fixed, so only the fill's variation can relax
     source = source - (source * pressure_cell).sum() / pressure_cell.sum()
     impulse = solve_pressure(operator, (source - divergence(operator.extend(v), scene.cells)) * pressure_cell)
