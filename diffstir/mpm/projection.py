@@ -46,7 +46,7 @@ from scipy.sparse.linalg import splu
 from torch import Tensor
 
 from .boundaries import GhostOperator
-from .viscous import CellStencil
+from .viscous import CellStencil, cell_velocity_gradient, nodal_forces
 
 STABILISATION = 0.1  # β: the checkerboard's weight in the stabilised operator, over A's diagonal (module docstring)
 TOLERANCE = 1e-10  # relative residual at which conjugate gradients stop (devices other than the CPU)
@@ -54,18 +54,17 @@ MAX_ITERATIONS = 2000
 
 
 def divergence(v: Tensor, cells: CellStencil) -> Tensor:
-    """D_c(v) = Σ_i ∇N_i(x_c) · v_i [1/s] at every cell centre, (cells,), from node velocities v (num_nodes, d)."""
-    k, d = cells.grad.shape
-    corner_v = v.index_select(0, cells.corners.view(-1)).view(-1, k * d)
-    return corner_v @ cells.grad.reshape(-1)
+    """D_c(v) = Σ_i ∇N_i(x_c) · v_i [1/s] at every cell centre, (cells,), from node velocities v (num_nodes, d): the
+    trace of ``viscous.cell_velocity_gradient``."""
+    return cell_velocity_gradient(v, cells).diagonal(dim1=-2, dim2=-1).sum(-1)
 
 
 def divergence_transpose(p: Tensor, cells: CellStencil, num_nodes: int) -> Tensor:
-    """Dᵀ p: Σ_c p_c ∇N_i(x_c) on every node, (num_nodes, d), from cell values p (cells,)."""
-    k, d = cells.grad.shape
-    per_corner = (p[:, None, None] * cells.grad).view(-1, d)
-    return torch.zeros(num_nodes, d, dtype=p.dtype, device=p.device).index_add_(0, cells.corners.view(-1),
-                                                                                per_corner)
+    """Dᵀ p: Σ_c p_c ∇N_i(x_c) on every node, (num_nodes, d), from cell values p (cells,): the node forces
+    (``viscous.nodal_forces``) of the isotropic stress −p I on unit cell volumes."""
+    d = cells.grad.shape[1]
+    stress = -p[:, None, None] * torch.eye(d, dtype=p.dtype, device=p.device)
+    return nodal_forces(stress, torch.ones_like(p), cells, num_nodes)
 
 
 def ghost_transpose(op: GhostOperator, u: Tensor) -> Tensor:
@@ -209,14 +208,13 @@ class PressureSolver:
         self.keep = pressure_cell.detach().bool()
         self.device = pressure_cell.device
         self.method = method or ("lu" if self.device.type == "cpu" else "cg")
-        sub = matrix
         if self.method == "lu":
-            self.lu = splu(sub.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+            self.lu = splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
         elif self.method == "cg":
-            sub = sub.tocoo()
-            self.sparse = torch.sparse_coo_tensor(np.stack([sub.row, sub.col]), sub.data, sub.shape,
+            coo = matrix.tocoo()
+            self.sparse = torch.sparse_coo_tensor(np.stack([coo.row, coo.col]), coo.data, coo.shape,
                                                   device=self.device, check_invariants=False).coalesce()
-            self.inverse_diagonal = torch.as_tensor(1.0 / sub.diagonal(), device=self.device)
+            self.inverse_diagonal = torch.as_tensor(1.0 / coo.diagonal(), device=self.device)
         else:
             raise ValueError(f"method = {method!r}; expected 'lu', 'cg' or None")
 

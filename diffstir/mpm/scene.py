@@ -61,10 +61,11 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     bounds = torch.stack([grid.origin + 0.5001 * dx, highest])
     offset_index = offsets @ grid.strides()
     rod_spacing = spacing / FINE
+    cells = CellStencil.of(grid)
     return Scene(
         grid=grid, offset_index=offset_index,
         stencil_points=torch.cat([offsets, torch.ones(len(offsets), 1, dtype=torch.int64, device=device)], 1).to(dtype),
-        eye=torch.eye(d, dtype=dtype, device=device), mass_row=mass_row, cells=CellStencil.of(grid),
+        eye=torch.eye(d, dtype=dtype, device=device), mass_row=mass_row, cells=cells,
         particle_bounds=bounds,
         strides=grid.strides(), nodes=nodes, cup=cup, cup_phi=cup_phi,
         cup_band=ghost_band(grid, cup_nodes, nodes[cup_nodes], cup_phi[cup_nodes], cup_normal[cup_nodes],
@@ -79,7 +80,7 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
         rod_points=rod_fill_points(rod, dx, rod_spacing, rig.rod.immersion_depth + config.headroom + 2 * dx, d,
                                    dtype, device),
         rod_point_mass=density * rod_spacing ** d,
-        cell_matrices=(CellMatrices.of(CellStencil.of(grid), grid.num_nodes) if config.pressure == "projection"
+        cell_matrices=(CellMatrices.of(cells, grid.num_nodes) if config.pressure == "projection"
                        else None),
     )
 
