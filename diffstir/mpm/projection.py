@@ -20,13 +20,12 @@ surface) carry no pressure. The pressure's node forces Σ_c π_c ∇N_i(x_c) / �
 shear stress's do, so that the rod's reaction (``step.grid_update``) counts both alike.
 
 Q1-P0 has a spurious pressure mode, the checkerboard (−1)^(i+j), that D Dᵀ does not see inside the fluid: left
-alone it grows from the particles' noise to several times the pressure and shakes the rod's force. The operator
+alone it grows from the particles' noise to a large part of the pressure. The operator
 is therefore stabilised, A + ε G², with G the cells' face graph Laplacian: G² weighs the checkerboard by (4d)²
 and a smooth pressure of wavenumber k by (k dx)⁴, so ε = β diag(A)/(4d)² gives the checkerboard β times the
-weight of a cell inside the fluid and leaves a divergence of relative order β (k dx)²/(4d)² unremoved. β = 0.1:
-a smooth divergence is removed to 1-2 %, the sharp one the moving rod causes in the cells beside it to 6 %
-(β = 1 left 22 % there), and the stir's drag moved by less than 1.2 % between β = 0, 0.1 and 1
-(docs/validation.md).
+weight of a cell inside the fluid and leaves a divergence of relative order β (k dx)²/(4d)² unremoved. β = 0.1
+removes a smooth divergence to under 2 % (tests/test_projection.py); the sharp one the moving rod causes beside
+it is removed less well the larger β (docs/validation.md).
 
 A is symmetric positive definite (the ghost velocities pin the constant pressure). It is assembled each step as a
 sparse matrix and factorised (``PressureSolver``). Gradients: the solve is differentiated implicitly,

@@ -228,8 +228,8 @@ def project(scene: Scene, v: Tensor, mass: Tensor, fluid: Tensor, solid: Tensor,
     reaction. A cell carries a pressure where each corner is solid or at least ``SURFACE_FILL`` full (``packing``,
     the nodes' fill of ``node_fill``) and one is fluid. ``mass``: the nodes' masses [kg] (2-D: [kg/m]),
     (num_nodes,); the projection weighs the nodes by them, so that the pressure's impulse changes the fluid's
-    momentum by exactly its amount (the bulk inertia that the viscous update gives light nodes for stability read
-    the stir 7 % higher at 0.2 Pa·s and 14 % at 0.05, docs/validation.md)."""
+    momentum by exactly its amount (with the bulk inertia that the viscous update gives light nodes for stability
+    the stir read high, docs/validation.md)."""
     full = solid | (packing >= SURFACE_FILL)
     pressure_cell = (cell_min(full.to(v.dtype), scene.cells) * cell_any(fluid, scene.cells)).to(v.dtype)
     mobility = torch.where(fluid, 1.0 / mass.clamp_min(MASS_FLOOR), 0.0)[:, None]
