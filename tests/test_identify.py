@@ -477,3 +477,68 @@ def test_broyden_ignores_steps_too_short_to_rise_above_the_simulations_round_off
     # the secant from θ = 1 (the short step did not move the base point) over 2.06 %: the slope at the middle,
     # within 4 standard deviations of the noise's sqrt(2) 5e-4 / (0.9 · 0.0206) = 3.8 %
     np.testing.assert_allclose(updated[:, 0] / np.exp(slope * 1.0103), slope, rtol=4 * 0.038)
+
+
+def test_models_fitted_in_parallel_processes_equal_those_fitted_in_one(newtonian_identification, newtonian_recording,
+                                                                     tmp_path):
+    # each simulation is deterministic at a given thread count, so the worker processes must reproduce the
+    # fits made in this process exactly, and write the same checkpoint
+    result, out = newtonian_identification
+    parallel = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
+                        holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=tmp_path / "c.json",
+                        workers=2)
+    assert list(parallel.fits) == list(result.fits) == ["newtonian", "power_law", "corotated"]
+    for name, fit in result.fits.items():
+        np.testing.assert_array_equal(parallel.fits[name].theta, fit.theta)
+        np.testing.assert_array_equal(parallel.fits[name].predicted, fit.predicted)
+    saved = [json.loads(path.read_text())["done"] for path in (out / "checkpoint.json", tmp_path / "c.json")]
+    assert saved[0].keys() == saved[1].keys() and saved[0]["fit"].keys() == saved[1]["fit"].keys()
+    assert all(saved[0]["fit"][n]["theta"] == saved[1]["fit"][n]["theta"] for n in saved[0]["fit"])
+
+
+def test_a_job_that_fails_in_a_worker_raises_in_the_caller(newtonian_recording):
+    from diffstir.identify.jobs import FitJob, Workers
+    from diffstir.identify.nuisance import SensorNuisance
+
+    problem = StirProblem(newtonian_recording, FAST, 1000.0, Windows.of(newtonian_recording, 0.1, 0.0))
+    events = []
+    with pytest.raises(ValueError, match="fit.optimizer = 'sgd'"), Workers(2, events.append) as workers:
+        for key in ("a", "b"):
+            workers.submit(FitJob("fit", key, problem, FitModel.named("newtonian", eta=1.0), 1, "sgd",
+                                  SensorNuisance(())))
+        list(workers.completed())
+    assert any(e[0] == "evaluation" for e in events)  # the worker's progress reached the caller before its error
+
+
+def test_unknown_laws_are_refused_before_any_fitting(newtonian_recording):
+    with pytest.raises(ValueError, match=r"\['vortex'\]: unknown laws"):
+        identify(newtonian_recording, ["newtonian", "vortex"], config=FAST, density=1000.0, progress=False)
+
+
+def test_an_interrupted_start_resumes_from_its_last_iterate_and_finished_starts_are_kept(newtonian_recording,
+                                                                                         tmp_path, monkeypatch):
+    from diffstir.identify.jobs import FitJob
+
+    checkpoint = tmp_path / "checkpoint.json"
+    kwargs = dict(config=FAST, density=1000.0, window=0.2, holdout_fraction=0.25, baseline=False, max_iterations=2,
+                  progress=False, checkpoint=checkpoint)
+    identify(newtonian_recording, ["newtonian", "herschel_bulkley"], **kwargs)
+    state = json.loads(checkpoint.read_text())
+    done = state["done"]["fit"]
+    starts = ["herschel_bulkley/start0", "herschel_bulkley/start1"]  # the paste's and the liquid's
+    assert done["herschel_bulkley"]["theta"] in [done[k]["theta"] for k in starts]
+    # interrupted while the liquid start was fitted, at its last iterate
+    state["running"]["fit"] = {starts[1]: done[starts[1]]["theta"]}
+    del done["herschel_bulkley"], done[starts[1]]
+    checkpoint.write_text(json.dumps(state))
+    started = []
+    run = FitJob.run
+    monkeypatch.setattr(FitJob, "run", lambda job, report: started.append((job.key, job.model.theta())) or
+                        run(job, report))
+    again = identify(newtonian_recording, ["newtonian", "herschel_bulkley"], **kwargs)
+    assert [key for key, _ in started] == [starts[1]]  # the Newtonian fit and the paste start were restored
+    # from its saved iterate, as read back from the law's float32 parameters
+    np.testing.assert_allclose(started[0][1], state["running"]["fit"][starts[1]], rtol=1e-6)
+    kept = json.loads(checkpoint.read_text())["done"]["fit"]
+    assert again.fits["herschel_bulkley"].loss == min(again.problem.loss(np.array(kept[k]["predicted"]))
+                                                      for k in starts)

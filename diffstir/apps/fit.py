@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from diffstir.apps import CONF_DIR
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.identify import identify
+from diffstir.identify.jobs import default_workers
 from diffstir.identify.report import write_report
 from diffstir.mixing import analyse_mixing, write_mixing_report
 from diffstir.recording import load_recording
@@ -40,6 +41,7 @@ def main(cfg: DictConfig) -> None:
         progress=cfg.progress, log_dir=out / "tensorboard",
         coarse=instantiate(cfg.coarse) if cfg.get("coarse") else None, fine_iterations=cfg.fit.fine_iterations,
         sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
+        workers=default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers),
     )
     if cfg.rectifier.checkpoint:
         result.refined = refined_viscosity(result, str(cfg.rectifier.checkpoint))

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
+from typing import Callable
 
 import numpy as np
 
@@ -43,6 +45,16 @@ def characteristic_shear_rate(problem: StirProblem) -> float:
     return max(mean_stirring_speed(problem), 1e-4) / problem.rig.rod.radius
 
 
+#: How a list of models is simulated: their mean |reading| [N] over a problem's fitted samples, in order (in this
+#: process by ``mean_readings``, or side by side by ``jobs.Workers.mean_readings``).
+MeanReadings = Callable[[list[FitModel]], list[float]]
+
+
+def mean_readings(problem: StirProblem, models: list[FitModel], on_evaluation=None) -> list[float]:
+    """The mean |reading| [N] over ``problem``'s fitted samples of one simulation of each model, in order."""
+    return [problem.mean_reading(Readings(problem, model, on_evaluation)(model.theta())) for model in models]
+
+
 #: Probe viscosities [Pa·s] of the Newtonian ladder: one per decade over the liquids a cup is stirred with.
 LADDER_VISCOSITIES = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
 
@@ -63,12 +75,12 @@ class ViscosityLadder:
 
     @classmethod
     def simulate(cls, problem: StirProblem, viscosities: tuple[float, ...] = LADDER_VISCOSITIES,
-                 on_evaluation=None) -> "ViscosityLadder":
-        """One forward simulation per probe viscosity on ``problem`` (``on_evaluation`` as for ``Readings``)."""
-        model = FitModel.named("newtonian", eta=viscosities[0])
-        readings = Readings(problem, model, on_evaluation)
-        means = tuple(problem.mean_reading(readings(np.log([eta]))) for eta in viscosities)
-        return cls(tuple(float(v) for v in viscosities), means)
+                 on_evaluation=None, evaluate: MeanReadings | None = None) -> "ViscosityLadder":
+        """One forward simulation per probe viscosity on ``problem`` (``on_evaluation`` as for ``Readings``;
+        ``evaluate``: how the simulations are run, ``mean_readings`` by default)."""
+        models = [FitModel.named("newtonian", eta=eta) for eta in viscosities]
+        means = (evaluate or partial(mean_readings, problem, on_evaluation=on_evaluation))(models)
+        return cls(tuple(float(v) for v in viscosities), tuple(means))
 
     def _informative(self) -> tuple[np.ndarray, np.ndarray]:
         """(readings, viscosities) of the informative probes; the first is the floor: the highest viscosity of
@@ -103,7 +115,8 @@ class ViscosityLadder:
         return self.invert(problem.mean_reading(), upper)
 
 
-def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None) -> float:
+def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None,
+                         evaluate: MeanReadings | None = None) -> float:
     """γ̇_eff [1/s] at Newtonian-equivalent viscosity ``eta_n`` [Pa·s] (module docstring), from four simulations
     and their mean |reading| F over the fitted samples: Newtonian fluids at η_N e^(±h/2) give the sensitivity
     s = d ln F / d ln η, and power laws of index 1 ± ε with K (U/a)^(n-1) = η_N give
@@ -111,18 +124,16 @@ def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None)
     Kept within [0.1, 10] U/a, where Metzner-Otto constants of stirrers lie; U/a itself where the reading does not
     respond to viscosity (s ≤ 0: thin, inertia-dominated fluids)."""
     rate0 = characteristic_shear_rate(problem)
-
-    def mean_reading(name: str, **params) -> float:
-        model = FitModel.named(name, **params)
-        return problem.mean_reading(Readings(problem, model, on_evaluation)(model.theta()))
-
     h, eps = VISCOSITY_STEP, PROBE_INDEX_STEP
-    sensitivity = math.log(mean_reading("newtonian", eta=eta_n * math.exp(h / 2))
-                           / mean_reading("newtonian", eta=eta_n * math.exp(-h / 2))) / h
+    probes = [FitModel.named("newtonian", eta=eta_n * math.exp(h / 2)),
+              FitModel.named("newtonian", eta=eta_n * math.exp(-h / 2)),
+              FitModel.named("power_law", k=eta_n * rate0 ** eps, n=1.0 - eps),
+              FitModel.named("power_law", k=eta_n * rate0 ** -eps, n=1.0 + eps)]
+    thicker, thinner, thinning, thickening = (
+        evaluate or partial(mean_readings, problem, on_evaluation=on_evaluation))(probes)
+    sensitivity = math.log(thicker / thinner) / h
     if not sensitivity > 0.0:
         return rate0
-    thinning = mean_reading("power_law", k=eta_n * rate0 ** eps, n=1.0 - eps)
-    thickening = mean_reading("power_law", k=eta_n * rate0 ** -eps, n=1.0 + eps)
     rate = rate0 * math.exp(math.log(thickening / thinning) / (2.0 * eps * sensitivity))
     return float(min(max(rate, 0.1 * rate0), 10.0 * rate0))
 

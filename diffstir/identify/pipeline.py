@@ -4,9 +4,10 @@
                       checkpoint="out/checkpoint.json")
     result.summary()["selected"]
 
-The Newtonian fit comes first: its viscosity and Jacobian give the stir's effective shear rate (``initial``), from
-which every other law starts. An interrupted run resumes from ``checkpoint``: finished models are not refitted and
-the model being fitted restarts from its last iterate.
+A ladder of Newtonian simulations gives the first viscosity and the stir's effective shear rate (``initial``). The
+Newtonian law is fitted first; every other model starts from its fit, and the fits run side by side in ``workers``
+processes as soon as their inputs are known (``stages``). An interrupted run resumes from ``checkpoint``: finished
+fits are not repeated and a fit under way restarts from its last iterate.
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -23,26 +25,19 @@ from ..density import estimate_recording_density
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..recording import Recording, RecordingError
-from .initial import (
-    LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, initial_models, newtonian_embedding,
-    mean_stirring_speed,
-)
+from ..rheology import LAWS
+from .jobs import Workers
+from .stages import Plan, Stage
+from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
 from .family import law_family
 from .models import FitModel
 from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
-from .optimise import FitResult, fit_model, noise_scale
+from .optimise import FitResult, noise_scale
 from .problem import StirProblem, Windows
 from .selection import bic, select
 from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, checked_model_error, laplace, log_viscosity_interval
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
-
-#: Fine-stage evaluations a one-parameter model (the Newtonian law, the corotated baseline) gets beyond
-#: ``fine_iterations``: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss
-#: (d ln F / d ln η ≈ 0.3 at Re 25, where one step from the coarse optimum ran to the trust region's edge: a
-#: 0.2 Pa·s lab fluid read +32 % after one fine step and −2 % after three, docs/accuracy.md).
-SECANT_STEPS = 2
-
 
 @dataclass
 class Identification:
@@ -132,7 +127,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              max_iterations: int = 6, optimizer: str = "lm", selection: str = "bic",
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
              coarse: SimConfig | None = None, fine_iterations: int = 3,
-             sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR) -> Identification:
+             sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR,
+             workers: int = 1) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -157,6 +153,10 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             (``uncertainty``; 0: the intervals hold the noise only).
     """
     checked_model_error(model_error, "fit.model_error")
+    unknown = sorted(set(models) - set(LAWS))
+    if unknown:  # before minutes of fitting, not when their turn comes
+        raise ValueError(f"model = {unknown}: unknown laws; choose from {sorted(LAWS)} (the corotated baseline is "
+                         "fitted with baseline=true)")
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)
@@ -178,64 +178,23 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             tmp.write_text(json.dumps(state))
             tmp.replace(checkpoint)
 
-    def run_stage(stage: str, stage_problem: StirProblem, iterations: int,
-                  start: dict[str, FitResult] | None) -> dict[str, FitResult]:
-        """Fit every model on ``stage_problem``; from scratch, or from the coarser stage's fits ``start``."""
-        done, running = state["done"].setdefault(stage, {}), state["running"].setdefault(stage, {})
-        dt = stage_dt(stage, stage_problem, start)
-        fits: dict[str, FitResult] = {}
-        for name in names:
-            if name in done:
-                fits[name] = _restore(name, done[name], stage_problem, dt=dt)
-                tracker.skip(name)
-                continue
-            jacobian = start_readings = None
-            if start is not None:
-                # with a fitted lag the coarse Jacobian is that of the lagged reading while Broyden follows the
-                # bare one: a phase shift of ωτ (0.13 rad at 20 ms and a 1 s period), left to the secant updates
-                model, jacobian = start[name].model.copy(), start[name].jacobian
-                start_readings = start[name].simulated_readings
-                if name == "corotated":  # keep its apparent viscosity mu * dt across the change of step
-                    model = FitModel.named("corotated", dt=dt,
-                                           shear_modulus=start[name].model.params_si()["shear_modulus"]
-                                           * start[name].model.dt / dt)
-                models = [model]
-                if name not in ("newtonian", "corotated"):  # and from the fine Newtonian fit, which the law contains:
-                    # two Broyden steps from the coarse optimum alone left Carreau above it (docs/benchmarks.md)
-                    models.append(newtonian_embedding(name, fits["newtonian"].model.params_si()["eta"],
-                                                      state["effective_shear_rate"]))
-            elif name == "newtonian":
-                models = [FitModel.named("newtonian", eta=state["ladder"]["estimate"])]
-            else:  # a yield-stress law has two starts, a liquid and a paste: both are fitted, the lower loss kept
-                models = initial_models(name, fits["newtonian"].model.params_si()["eta"],
-                                        state["effective_shear_rate"], dt=dt)
-            if name in running:  # resume the interrupted fit from its last iterate (the other start is dropped)
-                models = models[:1]
-                models[0].set_theta(np.array(running[name]))
-            # the corotated baseline's viscosity is mu * dt, so its step is held fixed
-            fit_problem = stage_problem if name != "corotated" else stage_problem.with_config(
-                replace(stage_problem.config, dt=dt))
-
-            def on_iteration(m, iteration, loss, theta, name=name):
-                running[name] = [float(t) for t in theta]
-                tracker.iteration(f"{stage}/{name}", iteration, loss, m.params_si())
-                save()
-
-            budget = iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
-            tries = [fit_model(fit_problem, model, max_iterations=budget, optimizer=optimizer,
-                               initial_jacobian=jacobian, initial_readings=start_readings,
-                               on_evaluation=tracker.evaluation, on_iteration=on_iteration, sensor=sensor)
-                     for model in models]
-            fits[name] = min(tries, key=lambda fit: fit.loss)
-            done[name] = _serialise(fits[name])
-            running.pop(name, None)
+    def on_event(event: tuple) -> None:
+        """A job's event (``jobs``): progress and TensorBoard, and its last iterate into the checkpoint."""
+        kind, stage, name, *data = event
+        if kind == "evaluation":
+            tracker.evaluation(name, *data)
+        elif kind == "iteration":
+            iteration, loss, theta, params = data
+            state["running"].setdefault(stage, {})[name] = theta
+            tracker.iteration(f"{stage}/{name}", iteration, loss, params)
             save()
-        return fits
 
-    def start_estimates(stage_problem: StirProblem) -> None:
+    def start_estimates(stage: Stage, pool: Workers) -> None:
         """The Newtonian ladder, its estimate (the fit's start, the rectifier's input) and γ̇_eff, once."""
+        stage_problem = stage.problem
+        evaluate = partial(pool.mean_readings, stage.name, stage_problem)
         if "ladder" not in state:
-            ladder = ViscosityLadder.simulate(stage_problem, on_evaluation=tracker.evaluation)
+            ladder = ViscosityLadder.simulate(stage_problem, evaluate=evaluate)
             eta = ladder.estimate(stage_problem)
             state["ladder"] = {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs),
                                "estimate": eta, "resolves": ladder.resolves(stage_problem.mean_reading()),
@@ -243,25 +202,36 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             save()
         if "effective_shear_rate" not in state:
             state["effective_shear_rate"] = effective_shear_rate(stage_problem, state["ladder"]["estimate"],
-                                                                 on_evaluation=tracker.evaluation)
+                                                                 evaluate=evaluate)
             save()
 
-    def stage_dt(stage: str, stage_problem: StirProblem, start: dict[str, FitResult] | None) -> float:
-        """The stage's time step for the corotated baseline [s]: that of a Newtonian fluid at the first estimate."""
-        if stage not in state["dt"]:
-            eta = start["newtonian"].model.params_si()["eta"] if start else 1.0
-            state["dt"][stage] = stage_problem.simulator(FitModel.named("newtonian", eta=eta).material).time_step(
-                stage_problem.trajectory)
-        return state["dt"][stage]
+    def stage_dt(stage: Stage, eta: float) -> float:
+        """The stage's time step for the corotated baseline [s]: that of a Newtonian fluid of viscosity ``eta``
+        [Pa·s], computed once per stage."""
+        if stage.name not in state["dt"]:
+            state["dt"][stage.name] = stage.problem.simulator(FitModel.named("newtonian", eta=eta).material
+                                                              ).time_step(stage.problem.trajectory)
+        return state["dt"][stage.name]
 
     state.setdefault("dt", {})
     if coarse is None:
-        start_estimates(problem)
-        fits = run_stage("fit", problem, max_iterations, None)
+        stages = (Stage("fit", problem, max_iterations),)
     else:
-        coarse_problem = StirProblem(recording, coarse, density_report["value"], windows)
-        start_estimates(coarse_problem)
-        fits = run_stage("fine", problem, fine_iterations, run_stage("coarse", coarse_problem, max_iterations, None))
+        stages = (Stage("coarse", StirProblem(recording, coarse, density_report["value"], windows), max_iterations),
+                  Stage("fine", problem, fine_iterations))
+    with Workers(workers, on_event) as pool:
+        start_estimates(stages[0], pool)
+        plan = Plan(stages, names, ladder_estimate=state["ladder"]["estimate"],
+                    shear_rate=state["effective_shear_rate"], optimizer=optimizer, sensor=sensor, stage_dt=stage_dt,
+                    done=state["done"], running=state["running"])
+        for job in plan.ready():
+            pool.submit(job)
+        for job, fit in pool.completed():
+            plan.finish(job, fit)
+            save()
+            for ready in plan.ready():
+                pool.submit(ready)
+    fits = plan.final()
     tracker.close()
 
     train = problem.train
@@ -322,25 +292,6 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
             "unit": "N"}
 
 
-def _serialise(fit: FitResult) -> dict:
-    return {"theta": fit.theta.tolist(), "predicted": fit.predicted.tolist(), "jacobian": fit.jacobian.tolist(),
-            "history": fit.history, "evaluations": fit.evaluations, "seconds": fit.seconds, "message": fit.message,
-            "converged": fit.converged, "params": fit.model.params_si(), "sensor": fit.sensor,
-            "simulated": None if fit.simulated is None else fit.simulated.tolist()}
-
-
-def _restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
-    model = FitModel.named(name, dt=dt, **saved["params"])
-    model.set_theta(np.array(saved["theta"]))  # the fit's exact θ, as the finished fit set it
-    predicted = np.array(saved["predicted"])
-    return FitResult(model=model, theta=np.array(saved["theta"]), predicted=predicted,
-                     jacobian=np.array(saved["jacobian"]), loss=problem.loss(predicted),
-                     holdout_loss=problem.loss(predicted, train=False), history=saved["history"],
-                     evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"],
-                     converged=saved.get("converged", False), sensor=saved.get("sensor", {}),
-                     simulated=None if saved.get("simulated") is None else np.array(saved["simulated"]))
-
-
 def _load_checkpoint(path: str | Path | None, settings: dict) -> dict:
     fresh = {"settings": settings, "done": {}, "running": {}}
     if path is None or not Path(path).exists():
@@ -386,10 +337,6 @@ class _Tracker:
             self.writer.add_scalar(f"loss/{name}", loss, iteration)
             for key, value in params.items():
                 self.writer.add_scalar(f"{name}/{key}", value, iteration)
-
-    def skip(self, name: str) -> None:
-        if self.bar is not None:
-            self.bar.set_description(f"identify {name} (from checkpoint)")
 
     def close(self) -> None:
         if self.bar is not None:

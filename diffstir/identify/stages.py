@@ -1,0 +1,186 @@
+"""Which fits an identification needs, in which order: every model on every stage (coarse, then fine), as jobs.
+
+A model's fit on a stage needs (``Plan.inputs_ready``):
+
+- the Newtonian law on the first stage: the ladder's estimate only;
+- any model on a later stage: its own fit on the stage before (its start and its Jacobian);
+- any other model: the Newtonian fit on the same stage (its start on the first stage, the Newtonian embedding it
+  must not end above on a later one).
+
+``Plan.ready`` returns the fits whose inputs are known as ``FitJob``s, one per start, so that the starts of a
+yield-stress law run side by side too; ``Plan.finish`` records a job's fit and keeps a model's lowest-loss start.
+The checkpoint (``done``, ``running``) holds each finished fit by stage and by job key, and a model's kept fit by
+its name, so an interrupted identification restores what it finished and resumes each job from its last iterate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from .initial import initial_models, newtonian_embedding
+from .jobs import FitJob
+from .models import FitModel
+from .nuisance import SensorNuisance
+from .optimise import FitResult
+from .problem import StirProblem
+
+#: Fine-stage evaluations a one-parameter model (the Newtonian law, the corotated baseline) gets beyond the
+#: stage's iterations: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss
+#: (d ln F / d ln η ≈ 0.3 at Re 25, where one step from the coarse optimum ran to the trust region's edge: a
+#: 0.2 Pa·s lab fluid read +32 % after one fine step and −2 % after three, docs/accuracy.md).
+SECANT_STEPS = 2
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One resolution of an identification: its name (``"fit"``, ``"coarse"``, ``"fine"``), the problem simulated
+    there and the optimiser's iterations per model there."""
+
+    name: str
+    problem: StirProblem
+    iterations: int
+
+
+class Plan:
+    """The fits of ``names`` (the Newtonian law first) on ``stages``, coarsest first.
+
+    Args:
+        ladder_estimate: the Newtonian law's start on the first stage [Pa·s].
+        shear_rate: the stir's effective shear rate γ̇_eff [1/s], where the other laws' starts match the Newtonian
+            fit.
+        stage_dt: the corotated baseline's fixed time step [s] on a stage, given the Newtonian viscosity [Pa·s] it
+            is taken at (1 Pa·s on the first stage, the Newtonian fit of the stage before on a later one).
+        done, running: the checkpoint's finished fits and last iterates by stage and key, updated in place.
+    """
+
+    def __init__(self, stages: tuple[Stage, ...], names: list[str], *, ladder_estimate: float, shear_rate: float,
+                 optimizer: str, sensor: SensorNuisance, stage_dt: Callable[[Stage, float], float],
+                 done: dict, running: dict):
+        self.stages, self.names = stages, names
+        self.ladder_estimate, self.shear_rate = ladder_estimate, shear_rate
+        self.optimizer, self.sensor, self.stage_dt = optimizer, sensor, stage_dt
+        self.done, self.running = done, running
+        self.fits: dict[str, dict[str, FitResult]] = {stage.name: {} for stage in stages}
+        self.starts: dict[tuple[str, str], dict[str, FitResult | None]] = {}  # (stage, model) -> key -> fit
+
+    def final(self) -> dict[str, FitResult]:
+        """Every model's fit on the last stage, in ``names``' order."""
+        last = self.fits[self.stages[-1].name]
+        missing = [n for n in self.names if n not in last]
+        if missing:
+            raise RuntimeError(f"the fits of {missing} on stage {self.stages[-1].name!r} never became ready")
+        return {name: last[name] for name in self.names}
+
+    def ready(self) -> list[FitJob]:
+        """The jobs whose inputs are known and that were not handed out yet; fits the checkpoint holds are
+        restored instead, which may make more jobs ready."""
+        jobs: list[FitJob] = []
+        restored = True
+        while restored:
+            restored = False
+            for index, stage in enumerate(self.stages):
+                for name in self.names:
+                    if (stage.name, name) in self.starts or not self.inputs_ready(index, name):
+                        continue
+                    saved = self.done.get(stage.name, {}).get(name)
+                    if saved is not None:
+                        self.starts[(stage.name, name)] = {}
+                        self.fits[stage.name][name] = restore(name, saved, stage.problem, self._dt(index, name))
+                        restored = True
+                        continue
+                    new = self._jobs(index, stage, name)
+                    self.starts[(stage.name, name)] = {job.key: None for job in new}
+                    for job in new:
+                        saved = self.done.get(stage.name, {}).get(job.key)
+                        if saved is None:
+                            jobs.append(job)
+                        else:  # one start of several finished before the interruption
+                            self.finish(job, restore(name, saved, job.problem, self._dt(index, name)), save=False)
+                            restored = restored or name in self.fits[stage.name]
+        return jobs
+
+    def inputs_ready(self, index: int, name: str) -> bool:
+        """Whether model ``name``'s fit on stage ``index`` has its inputs (module docstring)."""
+        before = self.fits[self.stages[index - 1].name] if index > 0 else None
+        if name == "newtonian":
+            return before is None or "newtonian" in before
+        return "newtonian" in self.fits[self.stages[index].name] and (before is None or name in before)
+
+    def finish(self, job: FitJob, fit: FitResult, save: bool = True) -> None:
+        """Record ``job``'s fit; once every start of its model has finished, keep the one of lowest loss."""
+        name = job.model.name
+        starts = self.starts[(job.stage, name)]
+        starts[job.key] = fit
+        if save:
+            self.done.setdefault(job.stage, {})[job.key] = serialise(fit)
+            self.running.get(job.stage, {}).pop(job.key, None)
+        if all(f is not None for f in starts.values()):
+            best = min(starts.values(), key=lambda f: f.loss)
+            self.fits[job.stage][name] = best
+            self.done.setdefault(job.stage, {})[name] = serialise(best)
+
+    def _dt(self, index: int, name: str) -> float | None:
+        """The corotated baseline's step on stage ``index`` [s] (None for the laws, which need none)."""
+        if name != "corotated":
+            return None
+        eta = 1.0 if index == 0 else self.fits[self.stages[index - 1].name]["newtonian"].model.params_si()["eta"]
+        return self.stage_dt(self.stages[index], eta)
+
+    def _jobs(self, index: int, stage: Stage, name: str) -> list[FitJob]:
+        """One job per start of model ``name`` on ``stage``."""
+        dt = self._dt(index, name)
+        start = self.fits[self.stages[index - 1].name][name] if index > 0 else None
+        jacobian = readings = None
+        if start is not None:
+            # with a fitted lag the coarse Jacobian is that of the lagged reading while Broyden follows the bare
+            # one: a phase shift of ωτ (0.13 rad at 20 ms and a 1 s period), left to the secant updates
+            model, jacobian, readings = start.model.copy(), start.jacobian, start.simulated_readings
+            if name == "corotated":  # keep its apparent viscosity mu * dt across the change of step
+                mu = start.model.params_si()["shear_modulus"]
+                model = FitModel.named("corotated", dt=dt, shear_modulus=mu * start.model.dt / dt)
+            models = [model]
+            if name not in ("newtonian", "corotated"):  # and from the stage's Newtonian fit, which the law contains:
+                # two Broyden steps from the coarse optimum alone left Carreau above it (docs/benchmarks.md)
+                eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
+                models.append(newtonian_embedding(name, eta, self.shear_rate))
+        elif name == "newtonian":
+            models = [FitModel.named("newtonian", eta=self.ladder_estimate)]
+        else:  # a yield-stress law has two starts, a liquid and a paste: both are fitted, the lower loss kept
+            eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
+            models = initial_models(name, eta, self.shear_rate, dt=dt)
+        # the corotated baseline's viscosity is mu * dt, so its step is held fixed
+        problem = stage.problem if dt is None else stage.problem.with_config(replace(stage.problem.config, dt=dt))
+        budget = stage.iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
+        jobs = []
+        for k, model in enumerate(models):
+            key = name if len(models) == 1 else f"{name}/start{k}"
+            last = self.running.get(stage.name, {}).get(key)
+            if last is not None:  # resume the interrupted job from its last iterate
+                model.set_theta(np.array(last))
+            jobs.append(FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor,
+                               jacobian=jacobian, readings=readings))
+        return jobs
+
+
+def serialise(fit: FitResult) -> dict:
+    """A fit as the checkpoint's JSON (``restore`` reads it back)."""
+    return {"theta": fit.theta.tolist(), "predicted": fit.predicted.tolist(), "jacobian": fit.jacobian.tolist(),
+            "history": fit.history, "evaluations": fit.evaluations, "seconds": fit.seconds, "message": fit.message,
+            "converged": fit.converged, "params": fit.model.params_si(), "sensor": fit.sensor,
+            "simulated": None if fit.simulated is None else fit.simulated.tolist()}
+
+
+def restore(name: str, saved: dict, problem: StirProblem, dt: float | None) -> FitResult:
+    """The fit of model ``name`` that ``serialise`` saved, on ``problem`` (``dt``: the corotated baseline's step)."""
+    model = FitModel.named(name, dt=dt, **saved["params"])
+    model.set_theta(np.array(saved["theta"]))  # the fit's exact θ, as the finished fit set it
+    predicted = np.array(saved["predicted"])
+    return FitResult(model=model, theta=np.array(saved["theta"]), predicted=predicted,
+                     jacobian=np.array(saved["jacobian"]), loss=problem.loss(predicted),
+                     holdout_loss=problem.loss(predicted, train=False), history=saved["history"],
+                     evaluations=saved["evaluations"], seconds=saved["seconds"], message=saved["message"],
+                     converged=saved.get("converged", False), sensor=saved.get("sensor", {}),
+                     simulated=None if saved.get("simulated") is None else np.array(saved["simulated"]))
