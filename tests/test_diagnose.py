@@ -276,3 +276,20 @@ def test_diagnose_app_writes_the_diagnosis(tmp_path, monkeypatch):
     assert diagnosis["verdict"] == "sensor_lag"
     assert [r["effect"] for r in diagnosis["ranking"]][0] == "sensor_lag"
     assert (out / "diagnosis.md").read_text().startswith("# Diagnosis")
+
+
+def test_candidates_fitted_in_parallel_processes_equal_those_fitted_in_one(tmp_path):
+    # every simulation is deterministic at a given thread count: the workers must reproduce the fits exactly
+    recording = lagged_recording(tau=0.08)
+    report = {"selected": "newtonian", "laws": {"newtonian": {"params": {"eta": 0.96}}},
+              "density": {"value": 1000.0}}
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    kwargs = dict(config=FAST, candidates=["sensor_lag", "wall_slip", "viscoelasticity"], max_iterations=1,
+                  window=0.5)
+    one, two = (diagnose(recording, tmp_path / "report.json", workers=n, **kwargs) for n in (1, 2))
+    assert list(two.fits) == list(one.fits) == ["sensor_lag", "wall_slip", "viscoelasticity", "none"]
+    for name, fit in one.fits.items():
+        assert two.fits[name].params == fit.params
+        np.testing.assert_array_equal(two.fits[name].predicted, fit.predicted)
+    timeless = [[{k: v for k, v in entry.items() if k != "seconds"} for entry in d.ranking] for d in (one, two)]
+    assert two.verdict == one.verdict and timeless[1] == timeless[0]

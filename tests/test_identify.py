@@ -497,7 +497,8 @@ def test_models_fitted_in_parallel_processes_equal_those_fitted_in_one(newtonian
 
 
 def test_a_job_that_fails_in_a_worker_raises_in_the_caller(newtonian_recording):
-    from diffstir.identify.jobs import FitJob, Workers
+    from diffstir.identify.jobs import FitJob
+    from diffstir.parallel import Workers
     from diffstir.identify.nuisance import SensorNuisance
 
     problem = StirProblem(newtonian_recording, FAST, 1000.0, Windows.of(newtonian_recording, 0.1, 0.0))

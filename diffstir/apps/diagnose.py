@@ -16,6 +16,7 @@ from omegaconf import DictConfig
 from diffstir.apps import CONF_DIR
 from diffstir.diagnose import diagnose, write_diagnosis
 from diffstir.identify import identify
+from diffstir.parallel import default_workers
 from diffstir.recording import load_recording
 
 
@@ -25,15 +26,16 @@ def main(cfg: DictConfig) -> None:
     out = Path(to_absolute_path(str(cfg.out)))
     recording = load_recording(to_absolute_path(str(cfg.recording)))
     config = instantiate(cfg.sim)
+    workers = default_workers(config.device) if cfg.workers is None else int(cfg.workers)
     if cfg.identification is None:
         identification = identify(recording, ["newtonian"], config=config, density=cfg.density, baseline=False,
                                   window=cfg.window, holdout_fraction=0.0, max_iterations=cfg.identify_iterations,
-                                  progress=cfg.progress, sensor_nuisance=())
+                                  progress=cfg.progress, sensor_nuisance=(), workers=workers)
     else:
         identification = to_absolute_path(str(cfg.identification))
     result = diagnose(recording, identification, config=config, window=cfg.window, candidates=list(cfg.candidates),
                       max_iterations=int(cfg.max_iterations), rebuild_time=float(cfg.rebuild_time),
-                      progress=bool(cfg.progress))
+                      progress=bool(cfg.progress), workers=workers)
     paths = write_diagnosis(result, out)
     print(f"{result.verdict}: {result.sentence}\nwrote {paths['json']} and {paths['md']}")
 

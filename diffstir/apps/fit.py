@@ -18,7 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from diffstir.apps import CONF_DIR
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.identify import identify
-from diffstir.identify.jobs import default_workers
+from diffstir.parallel import default_workers
 from diffstir.identify.report import write_report
 from diffstir.mixing import analyse_mixing, write_mixing_report
 from diffstir.recording import load_recording
@@ -41,7 +41,7 @@ def main(cfg: DictConfig) -> None:
         progress=cfg.progress, log_dir=out / "tensorboard",
         coarse=instantiate(cfg.coarse) if cfg.get("coarse") else None, fine_iterations=cfg.fit.fine_iterations,
         sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
-        workers=default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers),
+        workers=workers(cfg),
     )
     if cfg.rectifier.checkpoint:
         result.refined = refined_viscosity(result, str(cfg.rectifier.checkpoint))
@@ -65,9 +65,15 @@ def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
               f"{check['autocorrelation']:.2f}); no diagnosis needed")
         return
     config = instantiate(cfg.coarse) if cfg.get("coarse") else instantiate(cfg.sim)
-    diag = diagnose(result.recording, result, config=config, window=cfg.fit.window, progress=cfg.progress)
+    diag = diagnose(result.recording, result, config=config, window=cfg.fit.window, progress=cfg.progress,
+                    workers=workers(cfg))
     paths = write_diagnosis(diag, out / "diagnosis")
     print(f"diagnosis: {diag.verdict}; wrote {paths['json']}\n{diag.sentence}")
+
+
+def workers(cfg: DictConfig) -> int:
+    """The config's ``workers``: processes for fits side by side (null: one per CPU, one on a GPU)."""
+    return default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers)
 
 
 def refined_viscosity(result, checkpoint: str) -> dict:

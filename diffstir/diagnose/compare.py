@@ -40,6 +40,7 @@ from scipy import optimize
 from ..identify.optimise import Readings, fit_model
 from ..identify.selection import bic, bic_of_rss
 from ..identify.uncertainty import effective_samples, laplace
+from ..parallel import Workers
 from .base import residual_test
 from .candidates import (
     PHYSICS_CANDIDATES, SCALE, SENSOR_CANDIDATES, YIELD_SUMMARY, CachedReplay, Context, Parametrisation,
@@ -193,21 +194,47 @@ def fit_physics(name: str, ctx: Context, problem, *, max_iterations: int,
     return _finish(fit, model, result.theta, result.jacobian, ctx)
 
 
-def fit_candidates(names: list[str], ctx: Context, problem, *, max_iterations: int = 3,
-                   on_fit=None) -> dict[str, CandidateFit]:
-    """Fit every named candidate; ``on_fit(fit)`` is called after each."""
+@dataclass
+class PhysicsJob:
+    """A physics candidate's fit (``fit_physics``) as a job for ``diffstir.parallel.Workers``; ``key`` is its name."""
+
+    key: str
+    ctx: Context
+    problem: object
+    max_iterations: int
+    resume: CandidateFit | None = None
+    stage: str = "diagnose"
+    priority: tuple = (False, 1)
+
+    def run(self, report) -> CandidateFit:
+        return fit_physics(self.key, self.ctx, self.problem, max_iterations=self.max_iterations, resume=self.resume)
+
+
+def fit_candidates(names: list[str], ctx: Context, problem, *, max_iterations: int = 3, on_fit=None,
+                   workers: int = 1, resume: dict[str, CandidateFit] | None = None) -> dict[str, CandidateFit]:
+    """Fit every named candidate, in ``names``' order; ``on_fit(fit)`` is called after each. The physics
+    candidates, each a few simulations, run side by side in ``workers`` processes; with ``resume`` (earlier fits
+    by name) a physics candidate goes on from its earlier fit (``fit_physics``)."""
     fits = {}
     for name in names:
         if name == "none":
-            fit = fit_sensor(NONE, ctx)
+            fits[name] = fit_sensor(NONE, ctx)
         elif name in SENSOR_CANDIDATES:
-            fit = fit_sensor(SENSOR_CANDIDATES[name], ctx)
+            fits[name] = fit_sensor(SENSOR_CANDIDATES[name], ctx)
         else:
-            fit = fit_physics(name, ctx, problem, max_iterations=max_iterations)
-        fits[name] = fit
+            continue
         if on_fit is not None:
-            on_fit(fit)
-    return fits
+            on_fit(fits[name])
+    physics = [PhysicsJob(name, ctx, problem, max_iterations, (resume or {}).get(name))
+               for name in names if name not in fits]
+    with Workers(workers, report=lambda event: None) as pool:
+        for job in physics:
+            pool.submit(job)
+        for job, fit in pool.completed():
+            fits[job.key] = fit
+            if on_fit is not None:
+                on_fit(fit)
+    return {name: fits[name] for name in names}
 
 
 def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> tuple[list[dict], str, dict]:

@@ -25,7 +25,7 @@ from ..mpm import SimConfig
 from ..recording import Recording
 from .base import BaseFit, base_from_identification, law_from_report, noise_level, simulate_base
 from .candidates import CANDIDATES, Context, accel_reading, check_names
-from .compare import CandidateFit, fit_candidates, fit_physics, rank
+from .compare import CandidateFit, fit_candidates, rank
 from .locate import locate
 
 #: Confidence words for the separation ΔBIC between the verdict and the runner-up (Kass and Raftery 1995).
@@ -123,7 +123,7 @@ def _param(name: str, value: float, unit: str, ci) -> str:
 
 def diagnose(recording: Recording, identification: Identification | str | Path, *, config: SimConfig,
              window: float | None = None, candidates=CANDIDATES, max_iterations: int = 3,
-             rebuild_time: float = 1.0, progress: bool = False) -> Diagnosis:
+             rebuild_time: float = 1.0, progress: bool = False, workers: int = 1) -> Diagnosis:
     """Locate the mismatch between ``recording`` and its identification, fit every candidate extension, and name
     the missing physics (see the module docstring and ``compare``).
 
@@ -138,6 +138,8 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
             get as many again, and so does the best when its own fit was cut short.
         rebuild_time: the thixotropy candidate's starting rebuild time t_r [s] (fitted).
         progress: print one line per fitted candidate.
+        workers: processes that fit the physics candidates side by side (``compare.fit_candidates``; 1: in this
+            process). The result does not depend on it.
     """
     started = time.perf_counter()
     names = check_names(candidates)
@@ -167,13 +169,13 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
             state = fit.note or f"loss {fit.loss:.4g} N, {fit.simulations} simulations, {fit.seconds:.0f} s"
             print(f"diagnose {fit.name}: {state}", flush=True)
 
-    fits = fit_candidates(names, ctx, problem, max_iterations=max_iterations, on_fit=report)
+    fits = fit_candidates(names, ctx, problem, max_iterations=max_iterations, on_fit=report, workers=workers)
     ranking, verdict, evidence = rank(fits, problem.measured, noise)
     contenders = list(evidence["unconverged_contenders"])
     if verdict != "none" and contenders:  # a second budget for the fits that might still catch up, and the best
-        for name in contenders + ([evidence["best"]] if not fits[evidence["best"]].converged else []):
-            fits[name] = fit_physics(name, ctx, problem, max_iterations=max_iterations, resume=fits[name])
-            report(fits[name])
+        again = contenders + ([evidence["best"]] if not fits[evidence["best"]].converged else [])
+        fits.update(fit_candidates(again, ctx, problem, max_iterations=max_iterations, on_fit=report,
+                                   workers=workers, resume=fits))
         ranking, verdict, evidence = rank(fits, problem.measured, noise)
     return Diagnosis(recording=recording, problem=problem, base=base, location=location, fits=fits,
                      ranking=ranking, verdict=verdict, evidence=evidence, seconds=time.perf_counter() - started)

@@ -1,4 +1,5 @@
-"""Fits as jobs: one model fitted on one stage from given starts, run in this process or in worker processes.
+"""Fits as jobs: one model fitted on one stage from one start, run in this process or in worker processes
+(``diffstir.parallel.Workers``).
 
 An identification's fits depend on few others (``pipeline``): every model's first stage on the Newtonian fit
 there, a model's next stage on its own previous one and on the Newtonian fit of that stage. So once the Newtonian
@@ -16,16 +17,12 @@ workers, only the order in which they finish does.
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-import queue
-from concurrent.futures import Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
-import torch
 
+from ..parallel import Workers
 from .models import FitModel
 from .nuisance import SensorNuisance
 from .optimise import FitResult, Readings, fit_model
@@ -89,112 +86,6 @@ class ReadingJob:
         return self.problem.mean_reading(readings(self.model.theta()))
 
 
-def default_workers(device: str = "cpu") -> int:
-    """Worker processes for fitting: the CPUs this process may use on a CPU device, one on a GPU."""
-    if torch.device(device).type != "cpu":
-        return 1
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
-class Workers:
-    """Runs jobs (``FitJob``, ``ReadingJob``) in up to ``count`` processes; ``report`` receives every job's events
-    in this process. They run in this process when ``count`` is 1, and when this process is itself a worker of a
-    pool (a joblib sweep's, ``hydra/launcher=joblib``): that pool already fills the cores, and its workers cannot
-    spawn processes.
-
-        with Workers(2, report) as workers:
-            workers.submit(job)
-            for job, fit in workers.completed():   # more jobs may be submitted meanwhile
-                ...
-
-    A job that fails raises from ``completed`` once the jobs already running have finished.
-    """
-
-    def __init__(self, count: int, report: Callable[[tuple], None]):
-        self.report = report
-        self.inline = count <= 1 or multiprocessing.parent_process() is not None
-        self.waiting: list[FitJob | ReadingJob] = []  # submitted, not started, by priority
-        self.running: dict[Future, FitJob | ReadingJob] = {}
-        self.pool = self.events = None
-        self.finished: set[tuple[str, str]] = set()
-        if not self.inline:
-            context = multiprocessing.get_context("spawn")  # fork would copy the parent's torch thread pools
-            self.events = context.Queue()
-            self.pool = ProcessPoolExecutor(count, mp_context=context, initializer=_start_worker,
-                                            initargs=(self.events, torch.get_num_threads()))
-            self.slots = count
-
-    def __enter__(self) -> "Workers":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-
-    def submit(self, job: FitJob | ReadingJob) -> None:
-        self.waiting.append(job)
-        self.waiting.sort(key=lambda j: j.priority, reverse=True)
-
-    def mean_readings(self, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:
-        """``initial.MeanReadings`` side by side: the mean |reading| [N] of each model on ``problem``, in order.
-        Call it while no other job is waiting or running."""
-        if self.waiting or self.running:
-            raise RuntimeError("mean_readings would take the results of jobs already submitted")
-        jobs = [ReadingJob(stage, f"probe{k}", problem, model) for k, model in enumerate(models)]
-        for job in jobs:
-            self.submit(job)
-        means = {job.key: mean for job, mean in self.completed()}
-        return [means[job.key] for job in jobs]
-
-    def completed(self) -> Iterator[tuple[FitJob | ReadingJob, FitResult | float]]:
-        """Each job with its fit as it finishes, until none is waiting or running."""
-        while self.waiting or self.running:
-            if self.inline:
-                job = self.waiting.pop(0)
-                yield job, job.run(self.report)
-                continue
-            while self.waiting and len(self.running) < self.slots:  # no more than can run: a later one may go first
-                job = self.waiting.pop(0)
-                self.running[self.pool.submit(_run_in_worker, job)] = job
-            self._forward_events(timeout=0.2)
-            for future, job in list(self.running.items()):
-                if not future.done():
-                    continue
-                if future.exception() is not None:
-                    wait(self.running)
-                    self._forward_events(timeout=0.5)
-                    raise future.exception()
-                if (job.stage, job.key) in self.finished:  # every event of the job has been handed on
-                    self.finished.remove((job.stage, job.key))
-                    del self.running[future]
-                    yield job, future.result()
-
-    def _forward_events(self, timeout: float) -> None:
-        """Hand on the events queued so far, waiting up to ``timeout`` [s] for the first. A job's last event,
-        ``("finished", stage, key)``, says that all of its events have arrived (they travel on another pipe than
-        its result)."""
-        try:
-            event = self.events.get(timeout=timeout)
-            while True:
-                if event[0] == "finished":
-                    self.finished.add((event[1], event[2]))
-                else:
-                    self.report(event)
-                event = self.events.get_nowait()
-        except queue.Empty:
-            return
-
-
-_EVENTS = None  # a worker's event queue, set once by ``_start_worker``
-
-
-def _start_worker(events, threads: int) -> None:
-    global _EVENTS
-    _EVENTS = events
-    torch.set_num_threads(threads)
-
-
-def _run_in_worker(job: FitJob | ReadingJob) -> FitResult | float:
-    fit = job.run(_EVENTS.put)
-    _EVENTS.put(("finished", job.stage, job.key))
-    return fit
+def mean_readings(workers: Workers, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:
+    """``initial.MeanReadings`` side by side: the mean |reading| [N] of each model on ``problem``, in order."""
+    return workers.map([ReadingJob(stage, f"probe{k}", problem, model) for k, model in enumerate(models)])

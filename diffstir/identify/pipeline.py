@@ -26,7 +26,8 @@ from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..recording import Recording, RecordingError
 from ..rheology import LAWS
-from .jobs import Workers
+from ..parallel import Workers
+from .jobs import mean_readings
 from .stages import Plan, Stage
 from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
 from .family import law_family
@@ -192,7 +193,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     def start_estimates(stage: Stage, pool: Workers) -> None:
         """The Newtonian ladder, its estimate (the fit's start, the rectifier's input) and γ̇_eff, once."""
         stage_problem = stage.problem
-        evaluate = partial(pool.mean_readings, stage.name, stage_problem)
+        evaluate = partial(mean_readings, pool, stage.name, stage_problem)
         if "ladder" not in state:
             ladder = ViscosityLadder.simulate(stage_problem, evaluate=evaluate)
             eta = ladder.estimate(stage_problem)

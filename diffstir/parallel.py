@@ -1,0 +1,138 @@
+"""Independent jobs side by side in worker processes, one torch thread each, their events passed to the parent.
+
+A job (``Job``) is a picklable object with a ``stage`` and a ``key`` that name it, a ``priority`` (higher starts
+first) and ``run(report)``, which returns its result and may call ``report(event)`` with a tuple
+``(kind, stage, name, *data)`` (progress, checkpoints): the parent's ``report`` receives it as it happens. The
+identification's fits (``identify.jobs``) and the diagnosis's candidates (``diagnose.compare``) run this way.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import queue
+from concurrent.futures import Future, ProcessPoolExecutor, wait
+from typing import Callable, Iterator, Protocol
+
+import torch
+
+
+class Job(Protocol):
+    stage: str
+    key: str
+
+    @property
+    def priority(self) -> tuple: ...
+
+    def run(self, report: Callable[[tuple], None]) -> object: ...
+
+
+def default_workers(device: str = "cpu") -> int:
+    """Worker processes for a job pool: the CPUs this process may use on a CPU device, one on a GPU."""
+    if torch.device(device).type != "cpu":
+        return 1
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+class Workers:
+    """Runs jobs (``Job``) in up to ``count`` processes; ``report`` receives every job's events
+    in this process. They run in this process when ``count`` is 1, and when this process is itself a worker of a
+    pool (a joblib sweep's, ``hydra/launcher=joblib``): that pool already fills the cores, and its workers cannot
+    spawn processes.
+
+        with Workers(2, report) as workers:
+            workers.submit(job)
+            for job, result in workers.completed():   # more jobs may be submitted meanwhile
+                ...
+
+    A job that fails raises from ``completed`` once the jobs already running have finished.
+    """
+
+    def __init__(self, count: int, report: Callable[[tuple], None]):
+        self.report = report
+        self.inline = count <= 1 or multiprocessing.parent_process() is not None
+        self.waiting: list[Job] = []  # submitted, not started, by priority
+        self.running: dict[Future, Job] = {}
+        self.pool = self.events = None
+        self.finished: set[tuple[str, str]] = set()
+        if not self.inline:
+            context = multiprocessing.get_context("spawn")  # fork would copy the parent's torch thread pools
+            self.events = context.Queue()
+            self.pool = ProcessPoolExecutor(count, mp_context=context, initializer=_start_worker,
+                                            initargs=(self.events, torch.get_num_threads()))
+            self.slots = count
+
+    def __enter__(self) -> "Workers":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def submit(self, job: Job) -> None:
+        self.waiting.append(job)
+        self.waiting.sort(key=lambda j: j.priority, reverse=True)
+
+    def map(self, jobs: list[Job]) -> list:
+        """Every job's result, in order; call it while no other job is waiting or running."""
+        if self.waiting or self.running:
+            raise RuntimeError("Workers.map would take the results of jobs submitted before it")
+        if len({(job.stage, job.key) for job in jobs}) < len(jobs):
+            raise ValueError("Workers.map: two jobs share a (stage, key)")
+        for job in jobs:
+            self.submit(job)
+        results = {(job.stage, job.key): result for job, result in self.completed()}
+        return [results[(job.stage, job.key)] for job in jobs]
+
+    def completed(self) -> Iterator[tuple[Job, object]]:
+        """Each job with its result as it finishes, until none is waiting or running."""
+        while self.waiting or self.running:
+            if self.inline:
+                job = self.waiting.pop(0)
+                yield job, job.run(self.report)
+                continue
+            while self.waiting and len(self.running) < self.slots:  # no more than can run: a later one may go first
+                job = self.waiting.pop(0)
+                self.running[self.pool.submit(_run_in_worker, job)] = job
+            self._forward_events(timeout=0.2)
+            for future, job in list(self.running.items()):
+                if not future.done():
+                    continue
+                if future.exception() is not None:
+                    wait(self.running)
+                    self._forward_events(timeout=0.5)
+                    raise future.exception()
+                if (job.stage, job.key) in self.finished:  # every event of the job has been handed on
+                    self.finished.remove((job.stage, job.key))
+                    del self.running[future]
+                    yield job, future.result()
+
+    def _forward_events(self, timeout: float) -> None:
+        """Hand on the events queued so far, waiting up to ``timeout`` [s] for the first. A job's last event,
+        ``("finished", stage, key)``, says that all of its events have arrived (they travel on another pipe than
+        its result)."""
+        try:
+            event = self.events.get(timeout=timeout)
+            while True:
+                if event[0] == "finished":
+                    self.finished.add((event[1], event[2]))
+                else:
+                    self.report(event)
+                event = self.events.get_nowait()
+        except queue.Empty:
+            return
+
+
+_EVENTS = None  # a worker's event queue, set once by ``_start_worker``
+
+
+def _start_worker(events, threads: int) -> None:
+    global _EVENTS
+    _EVENTS = events
+    torch.set_num_threads(threads)
+
+
+def _run_in_worker(job: Job) -> object:
+    result = job.run(_EVENTS.put)
+    _EVENTS.put(("finished", job.stage, job.key))
+    return result
