@@ -13,6 +13,7 @@ import torch
 from diffstir.behaviour import CLASSES, characterise, classify, log_slope, speed_windows
 from diffstir.behaviour.apparent import with_baseline
 from diffstir.behaviour.classify import YIELD_CRITICAL
+from diffstir.behaviour.joint import joint_fit
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
@@ -145,7 +146,7 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
 
 def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     result = characterise([lab_recordings["thinning"]], config=FAST, iterations=2,
-                          joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50)
+                          joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50, workers=2)
     c = result.classification
     # Metzner-Otto: a power law's Newtonian-equivalent viscosity goes as U^(n-1) in creeping flow; inertia and the
     # capped far field flatten it, so the per-speed slope only has to be negative; the joint fit, through the same
@@ -155,6 +156,11 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     assert joint.selected == "power_law"  # one more parameter, and BIC still prefers it to Newtonian
     lo, hi = joint.uncertainty["power_law"].ci95["n"]
     assert lo <= 0.4 <= hi
+    # the laws were fitted in two worker processes: in this one, each simulation deterministic, they are the same
+    here = joint_fit(result.used, result.shear_rates(result.used), FAST, result.density["value"],
+                     ["newtonian", "power_law"], iterations=4, workers=1)
+    for name, fit in here.fits.items():
+        np.testing.assert_array_equal(fit.theta, joint.fits[name].theta)
 
 
 def test_behaviour_experiment_writes_the_report(lab_recordings, tmp_path, monkeypatch):

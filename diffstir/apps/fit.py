@@ -96,7 +96,7 @@ def behaviour(cfg: DictConfig) -> None:
                           config=instantiate(cfg.sim), density=cfg.density, iterations=b.iterations,
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, replicates=b.replicates,
-                          seed=b.seed, model_error=b.model_error)
+                          seed=b.seed, model_error=b.model_error, workers=workers(cfg))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     c = result.classification

@@ -17,11 +17,14 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..identify import FitModel, FitResult, StirProblem, Windows, fit_model
+from ..identify import FitModel, FitResult, StirProblem, Windows
+from ..identify.jobs import FitJob
 from ..identify.initial import initial_model
+from ..identify.nuisance import NO_NUISANCE
 from ..identify.selection import bic, rank
 from ..identify.uncertainty import Uncertainty, laplace
 from ..mpm import SimConfig
+from ..parallel import Workers
 from ..rheology import FlowCurve, fit_flow_curve
 from .apparent import ViscosityPoint
 from .windows import SpeedWindow
@@ -90,9 +93,9 @@ class JointFit:
 
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,
-              models: list[str], *, iterations: int = 3) -> JointFit:
+              models: list[str], *, iterations: int = 3, workers: int = 1) -> JointFit:
     """Fit each law in ``models`` to the readings of every window of ``points``, whose effective shear rates
-    [1/s] are ``shear_rates``, at once (module docstring)."""
+    [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes."""
     if not models:
         raise ValueError("behaviour.joint_models is empty; name at least one law of diffstir.rheology.LAWS")
     problem = JointProblem([p.window for p in points], config, density)
@@ -101,16 +104,18 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     w = 1.0 / np.array([p.total_log_std for p in points]) ** 2
     curve = FlowCurve(g, eta * g)
     middle = int(np.argsort(g)[g.size // 2])
-    fits, uncertainty = {}, {}
+    jobs = []
     for name in models:
         model = FitModel.named(name)  # validates the name
         if g.size > model.size:
             model = FitModel(fit_flow_curve(name, curve, weights=w / w.max()).law.float())
         else:
             model = initial_model(name, float(eta[middle]), float(g[middle]))
-        fits[name] = fit_model(problem, model, max_iterations=iterations)
-        residuals = fits[name].predicted - problem.measured
-        uncertainty[name] = laplace(fits[name].model, fits[name].theta, fits[name].jacobian, residuals)
+        jobs.append(FitJob("joint", name, problem, model, iterations, "lm", NO_NUISANCE))
+    with Workers(workers, report=lambda event: None) as pool:
+        fits = dict(zip(models, pool.map(jobs)))
+    uncertainty = {name: laplace(fit.model, fit.theta, fit.jacobian, fit.predicted - problem.measured)
+                   for name, fit in fits.items()}
     residuals = {n: f.predicted - problem.measured for n, f in fits.items()}
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples

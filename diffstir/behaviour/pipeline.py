@@ -63,7 +63,7 @@ class Behaviour:
 def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 3,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, replicates: int = 200,
-                 seed: int = 0, model_error: float = MODEL_FORCE_ERROR) -> Behaviour:
+                 seed: int = 0, model_error: float = MODEL_FORCE_ERROR, workers: int = 1) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
@@ -77,6 +77,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
             (``apparent``); the default is the fitting grid's (``identify.uncertainty``), raise it for a coarser
             one (``COARSE_FORCE_ERROR`` for ``conf/sim/coarse2d.yaml``).
+        workers: processes that fit the joint laws side by side (``joint.joint_fit``; 1: in this process).
     """
     started = time.perf_counter()
     if not recordings:
@@ -98,8 +99,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
     result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used], replicates=replicates,
                       seed=seed)
-    joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations) \
-        if joint_models else None
+    joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
+                      workers=workers) if joint_models else None
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
 
 
