@@ -38,6 +38,8 @@ class FitJob:
         key: the checkpoint's name for the job: the model's name, or ``name/start<k>`` for one of its starts.
         budget: the optimiser's iterations (``fit_model``'s ``max_iterations``).
         jacobian, readings: a coarser stage's Jacobian and readings at the start (coarse-to-fine), or None.
+        cost: its expected work and that of the jobs waiting for it, in simulated steps, for ``priority`` (None:
+            its own simulations).
     """
 
     stage: str
@@ -49,6 +51,7 @@ class FitJob:
     sensor: SensorNuisance
     jacobian: np.ndarray | None = None
     readings: np.ndarray | None = None
+    cost: float | None = None
 
     def run(self, report: Callable[[tuple], None]) -> FitResult:
         def on_evaluation(model_name, count, loss):
@@ -62,12 +65,16 @@ class FitJob:
                          on_evaluation=on_evaluation, on_iteration=on_iteration, sensor=self.sensor)
 
     @property
-    def priority(self) -> tuple[bool, int]:
+    def simulations(self) -> int:
+        """The simulations it spends at least: a first finite-difference Jacobian (parameters + 1), or its budget
+        where a coarser stage's Jacobian is reused."""
+        return self.budget if self.jacobian is not None else self.model.size + 1
+
+    @property
+    def priority(self) -> tuple[bool, float]:
         """Jobs of higher priority start first: the Newtonian law's, which every other model waits for, then the
-        dearer ones, in simulations: a first finite-difference Jacobian (parameters + 1), or the budget where a
-        coarser stage's Jacobian is reused."""
-        cost = self.budget if self.jacobian is not None else self.model.size + 1
-        return self.model.name == "newtonian", cost
+        dearer ones (``cost``)."""
+        return self.model.name == "newtonian", self.simulations if self.cost is None else self.cost
 
 
 @dataclass

@@ -160,9 +160,30 @@ class Plan:
             last = self.running.get(stage.name, {}).get(key)
             if last is not None:  # resume the interrupted job from its last iterate
                 model.set_theta(np.array(last))
-            jobs.append(FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor,
-                               jacobian=jacobian, readings=readings))
+            job = FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor,
+                         jacobian=jacobian, readings=readings)
+            job.cost = job.simulations * _steps(problem, model) + self._later_cost(index, name, model)
+            jobs.append(job)
         return jobs
+
+    def _later_cost(self, index: int, name: str, model: FitModel) -> float:
+        """The simulated steps that the later stages of model ``name`` will spend from ``model`` [steps]: a job
+        that others wait for goes first (a critical-path priority)."""
+        cost = 0.0
+        for later in range(index + 1, len(self.stages)):
+            stage = self.stages[later]
+            budget = stage.iterations + (SECANT_STEPS if model.size == 1 else 0)
+            problem = stage.problem
+            if name == "corotated":  # its fixed step there, from the Newtonian fit of the stage before
+                problem = problem.with_config(replace(problem.config, dt=self._dt(later, name)))
+            cost += budget * _steps(problem, model)
+        return cost
+
+
+def _steps(problem: StirProblem, model: FitModel) -> float:
+    """The steps of one simulation of ``model`` on ``problem`` at its current θ: the viscous limit shortens them
+    where the viscosity is high (a yield stress at low shear rates)."""
+    return problem.trajectory.duration / problem.simulator(model.material).time_step(problem.trajectory)
 
 
 def serialise(fit: FitResult) -> dict:
