@@ -13,10 +13,9 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import CONF_DIR, config_workers
 from diffstir.diagnose import diagnose, write_diagnosis
 from diffstir.identify import identify
-from diffstir.parallel import default_workers
 from diffstir.recording import load_recording
 
 
@@ -26,7 +25,7 @@ def main(cfg: DictConfig) -> None:
     out = Path(to_absolute_path(str(cfg.out)))
     recording = load_recording(to_absolute_path(str(cfg.recording)))
     config = instantiate(cfg.sim)
-    workers = default_workers(config.device) if cfg.workers is None else int(cfg.workers)
+    workers = config_workers(cfg)
     if cfg.identification is None:
         identification = identify(recording, ["newtonian"], config=config, density=cfg.density, baseline=False,
                                   window=cfg.window, holdout_fraction=0.0, max_iterations=cfg.identify_iterations,

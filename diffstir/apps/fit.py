@@ -15,10 +15,9 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import CONF_DIR, config_workers
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.identify import identify
-from diffstir.parallel import default_workers
 from diffstir.identify.report import write_report
 from diffstir.mixing import analyse_mixing, write_mixing_report
 from diffstir.recording import load_recording
@@ -41,7 +40,7 @@ def main(cfg: DictConfig) -> None:
         progress=cfg.progress, log_dir=out / "tensorboard",
         coarse=instantiate(cfg.coarse) if cfg.get("coarse") else None, fine_iterations=cfg.fit.fine_iterations,
         sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
-        workers=workers(cfg),
+        workers=config_workers(cfg),
     )
     if cfg.rectifier.checkpoint:
         result.refined = refined_viscosity(result, str(cfg.rectifier.checkpoint))
@@ -66,14 +65,9 @@ def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
         return
     config = instantiate(cfg.coarse) if cfg.get("coarse") else instantiate(cfg.sim)
     diag = diagnose(result.recording, result, config=config, window=cfg.fit.window, progress=cfg.progress,
-                    workers=workers(cfg))
+                    workers=config_workers(cfg))
     paths = write_diagnosis(diag, out / "diagnosis")
     print(f"diagnosis: {diag.verdict}; wrote {paths['json']}\n{diag.sentence}")
-
-
-def workers(cfg: DictConfig) -> int:
-    """The config's ``workers``: processes for fits side by side (null: one per CPU, one on a GPU)."""
-    return default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers)
 
 
 def refined_viscosity(result, checkpoint: str) -> dict:
@@ -96,7 +90,7 @@ def behaviour(cfg: DictConfig) -> None:
                           config=instantiate(cfg.sim), density=cfg.density, iterations=b.iterations,
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, replicates=b.replicates,
-                          seed=b.seed, model_error=b.model_error, workers=workers(cfg))
+                          seed=b.seed, model_error=b.model_error, workers=config_workers(cfg))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     c = result.classification

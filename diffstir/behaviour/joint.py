@@ -114,9 +114,8 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
         jobs.append(FitJob("joint", name, problem, model, iterations, "lm", NO_NUISANCE))
     with Workers(workers, report=lambda event: None) as pool:
         fits = dict(zip(models, pool.map(jobs)))
-    uncertainty = {name: laplace(fit.model, fit.theta, fit.jacobian, fit.predicted - problem.measured)
-                   for name, fit in fits.items()}
     residuals = {n: f.predicted - problem.measured for n, f in fits.items()}
+    uncertainty = {n: laplace(f.model, f.theta, f.jacobian, residuals[n]) for n, f in fits.items()}
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples
     bics = {n: bic(r, fits[n].model.size, n_effective) for n, r in residuals.items()}

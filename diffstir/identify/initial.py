@@ -46,7 +46,7 @@ def characteristic_shear_rate(problem: StirProblem) -> float:
 
 
 #: How a list of models is simulated: their mean |reading| [N] over a problem's fitted samples, in order (in this
-#: process by ``mean_readings``, or side by side by ``jobs.mean_readings``).
+#: process by ``mean_readings``, or side by side by ``jobs.mean_readings_on``).
 MeanReadings = Callable[[list[FitModel]], list[float]]
 
 

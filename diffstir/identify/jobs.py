@@ -23,9 +23,10 @@ from typing import Callable
 import numpy as np
 
 from ..parallel import Workers
+from .initial import mean_readings
 from .models import FitModel
 from .nuisance import SensorNuisance
-from .optimise import FitResult, Readings, fit_model
+from .optimise import FitResult, fit_model
 from .problem import StirProblem
 
 
@@ -89,10 +90,9 @@ class ReadingJob:
     priority: tuple[bool, int] = (True, 1)  # probes come before the fits that wait for them
 
     def run(self, report: Callable[[tuple], None]) -> float:
-        readings = Readings(self.problem, self.model, lambda *data: report(("evaluation", self.stage, *data)))
-        return self.problem.mean_reading(readings(self.model.theta()))
+        return mean_readings(self.problem, [self.model], lambda *data: report(("evaluation", self.stage, *data)))[0]
 
 
-def mean_readings(workers: Workers, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:
+def mean_readings_on(workers: Workers, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:
     """``initial.MeanReadings`` side by side: the mean |reading| [N] of each model on ``problem``, in order."""
     return workers.map([ReadingJob(stage, f"probe{k}", problem, model) for k, model in enumerate(models)])

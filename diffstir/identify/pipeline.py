@@ -24,21 +24,22 @@ import numpy as np
 from ..density import estimate_recording_density
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
+from ..parallel import Workers
 from ..recording import Recording, RecordingError
 from ..rheology import LAWS
-from ..parallel import Workers
-from .jobs import mean_readings
-from .stages import Plan, Stage
-from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
 from .family import law_family
+from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
+from .jobs import mean_readings_on
 from .models import FitModel
 from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
 from .optimise import FitResult, noise_scale
 from .problem import StirProblem, Windows
 from .selection import bic, select
+from .stages import Plan, Stage
 from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, checked_model_error, laplace, log_viscosity_interval
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
+
 
 @dataclass
 class Identification:
@@ -193,7 +194,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     def start_estimates(stage: Stage, pool: Workers) -> None:
         """The Newtonian ladder, its estimate (the fit's start, the rectifier's input) and γ̇_eff, once."""
         stage_problem = stage.problem
-        evaluate = partial(mean_readings, pool, stage.name, stage_problem)
+        evaluate = partial(mean_readings_on, pool, stage.name, stage_problem)
         if "ladder" not in state:
             ladder = ViscosityLadder.simulate(stage_problem, evaluate=evaluate)
             eta = ladder.estimate(stage_problem)

@@ -151,8 +151,7 @@ class Plan:
         else:  # a yield-stress law has two starts, a liquid and a paste: both are fitted, the lower loss kept
             eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
             models = initial_models(name, eta, self.shear_rate, dt=dt)
-        # the corotated baseline's viscosity is mu * dt, so its step is held fixed
-        problem = stage.problem if dt is None else stage.problem.with_config(replace(stage.problem.config, dt=dt))
+        problem = self._problem(index, name)
         budget = stage.iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
         jobs = []
         for k, model in enumerate(models):
@@ -173,11 +172,14 @@ class Plan:
         for later in range(index + 1, len(self.stages)):
             stage = self.stages[later]
             budget = stage.iterations + (SECANT_STEPS if model.size == 1 else 0)
-            problem = stage.problem
-            if name == "corotated":  # its fixed step there, from the Newtonian fit of the stage before
-                problem = problem.with_config(replace(problem.config, dt=self._dt(later, name)))
-            cost += budget * _steps(problem, model)
+            cost += budget * _steps(self._problem(later, name), model)
         return cost
+
+    def _problem(self, index: int, name: str) -> StirProblem:
+        """Stage ``index``'s problem for model ``name``: the corotated baseline's viscosity is mu * dt, so its
+        step is held fixed there (``_dt``)."""
+        problem, dt = self.stages[index].problem, self._dt(index, name)
+        return problem if dt is None else problem.with_config(replace(problem.config, dt=dt))
 
 
 def _steps(problem: StirProblem, model: FitModel) -> float:
