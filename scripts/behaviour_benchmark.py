@@ -2,14 +2,17 @@
 
 Each fluid is stirred by the lab (``diffstir.lab.synthesise``) along one programme of four speeds a factor 2
 apart, read through a sensor preset (``--sensor``, default the paper's; noise seed ``--seed`` plus the fluid's
-place in ``FLUIDS``), and classified by ``diffstir.behaviour.characterise`` without the joint fit, with
-``--iterations`` Gauss-Newton steps per window.
+place in ``FLUIDS``), and classified by ``diffstir.behaviour.characterise`` with ``--iterations`` Gauss-Newton
+steps per window, and with the laws of ``--joint-models`` fitted to every speed at once (default none: the
+per-speed points alone decide; with laws with and without a yield stress, the joint fit decides the yield stress,
+``docs/behaviour.md`` step 4) side by side in ``--workers`` processes.
 The windows are fitted on ``--fit-sim`` (default ``conf/sim/slice2d.yaml``, 2.5 mm) with its relative force
 error ``--model-error`` (default 0.03, that grid's) in every window's interval; the truth is simulated on
 ``--truth-sim`` (default ``conf/lab/sim/truth2d.yaml``, 2 mm; ``--truth-dx`` changes its cells), finer than the
 fit, so the fit meets a discretisation gap. Prints one row per fluid and the confusion matrix as markdown.
 
     python scripts/behaviour_benchmark.py [--fluids castor_oil ...] [--sensor ideal] [--out DIR]
+    python scripts/behaviour_benchmark.py --joint-models power_law herschel_bulkley --workers 2
     python scripts/behaviour_benchmark.py --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \
         --truth-dx 0.004 --model-error 0.063    # the 5 mm grid against a 4 mm truth, about 4x faster
 """
@@ -68,6 +71,9 @@ def main() -> None:
     parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
     parser.add_argument("--model-error", type=float, default=MODEL_FORCE_ERROR,
                         help="relative force error of the fitting grid in every window's interval (0: none)")
+    parser.add_argument("--joint-models", nargs="*", default=[], help="laws fitted to all speeds at once")
+    parser.add_argument("--joint-iterations", type=int, default=5, help="Gauss-Newton iterations of each joint law")
+    parser.add_argument("--workers", type=int, default=1, help="processes for the joint laws")
     parser.add_argument("--out", type=Path, default=None, help="write each fluid's summary JSON here")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -80,8 +86,9 @@ def main() -> None:
     trajectory = stirring_programme(segments, radius=RADIUS, ramp_time=0.2)
     started = time.perf_counter()
     confusion = np.zeros((len(CLASSES), len(CLASSES) + 1), dtype=int)
-    print("| fluid | true class | class (confidence) | slope [95 % CI] | yield Λ | seconds |")
-    print("|---|---|---|---|---|---|")
+    print("| fluid | true class | class (confidence) | slope [95 % CI] | yield Λ | joint: selected, yield weight "
+          "(ΔBIC) | seconds |")
+    print("|---|---|---|---|---|---|---|")
     for name in args.fluids:
         truth, law, density = FLUIDS[name]
         i = list(FLUIDS).index(name)  # the fluid's seed does not depend on which fluids run
@@ -89,19 +96,22 @@ def main() -> None:
         lab = synthesise(Fluid(name=name, density=density, law=law), trajectory, sim_config=truth_config,
                          sensor=sensor, seed=args.seed + i, name=name)
         try:
-            result = characterise([lab.recording], config=fit_config, iterations=args.iterations, joint_models=(),
-                                  model_error=args.model_error)
+            result = characterise([lab.recording], config=fit_config, iterations=args.iterations,
+                                  joint_models=args.joint_models, joint_iterations=args.joint_iterations,
+                                  model_error=args.model_error, workers=args.workers)
         except RecordingError as error:  # the classifier refuses (e.g. no speed resolved): an outcome to count
             confusion[CLASSES.index(truth), -1] += 1
-            print(f"| {name} | {truth} | refused: {error} | - | - | {time.perf_counter() - t0:.0f} |", flush=True)
+            print(f"| {name} | {truth} | refused: {error} | - | - | - | {time.perf_counter() - t0:.0f} |", flush=True)
             continue
         summary = result.summary()
         b = summary["behaviour"]
         confusion[CLASSES.index(truth), CLASSES.index(b["class"])] += 1
-        stat = b["yield_test"]["statistic"]
+        stat, joint = b["yield_test"]["statistic"], b["yield_test"]["joint"]
+        selected = "-" if summary["joint_fit"] is None else summary["joint_fit"]["selected"]
+        evidence = "" if joint is None else f", {joint['weight']:.2f} ({joint['delta_bic']:+.1f})"
         print(f"| {name} | {truth} | {b['class']} ({b['confidence']:.2f}) | {b['slope']:.3f} "
               f"[{b['slope_ci95'][0]:.3f}, {b['slope_ci95'][1]:.3f}] | {'-' if stat is None else f'{stat:.2f}'} | "
-              f"{time.perf_counter() - t0:.0f} |", flush=True)
+              f"{selected}{evidence} | {time.perf_counter() - t0:.0f} |", flush=True)
         if args.out is not None:
             args.out.mkdir(parents=True, exist_ok=True)
             (args.out / f"{name}.json").write_text(json.dumps({"truth": truth, "law": law, **summary}, indent=2))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.behaviour import CLASSES, characterise, classify, log_slope, speed_windows
+from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows
 from diffstir.behaviour.apparent import with_baseline
 from diffstir.behaviour.classify import YIELD_CRITICAL
 from diffstir.behaviour.joint import joint_fit
@@ -97,6 +97,50 @@ def test_model_flow_curves_get_their_class(label, viscosity):
     assert result.confidence >= 0.95 - 3 * math.sqrt(0.95 * 0.05 / 50)
     if label == "shear_thinning":  # a power law: nothing for the yield stress to explain
         assert result.yield_statistic < YIELD_CRITICAL
+
+
+def test_joint_yield_test_is_the_schwarz_weight_of_the_yield_stress_laws():
+    # BIC = -2 ln(evidence): two laws 2 apart have posterior odds e, so the better one's weight is e / (1 + e)
+    test = joint_yield_test({"power_law": 10.0, "herschel_bulkley": 8.0}, {"herschel_bulkley"})
+    assert test.weight == pytest.approx(math.e / (1 + math.e))
+    assert (test.best_yield, test.best_other, test.delta_bic) == ("herschel_bulkley", "power_law", 2.0)
+    # weights add over laws: two yield laws of equal BIC against one law 2 ln 2 better hold half
+    test = joint_yield_test({"herschel_bulkley": 5.0, "bingham": 5.0, "cross": 5.0 - 2 * math.log(2)},
+                            {"herschel_bulkley", "bingham"})
+    assert test.weight == pytest.approx(0.5)
+    # no decision without laws on both sides, and a failed fit (NaN BIC) takes no part
+    assert joint_yield_test({"newtonian": 1.0, "power_law": 0.0}, {"herschel_bulkley"}) is None
+    assert joint_yield_test({"herschel_bulkley": math.nan, "power_law": 0.0}, {"herschel_bulkley"}) is None
+
+
+@pytest.mark.parametrize("curve,bics,label", [
+    # a power law's points, but the joint fit (through the simulator, which models the plug) needs a yield stress
+    (lambda g: 0.5 * g ** -0.4, {"power_law": 10.0, "herschel_bulkley": 0.0}, "yield_stress"),
+    # a curved flow curve that the joint fit explains without a yield stress
+    (lambda g: (1.0 + g ** 0.5) / g, {"power_law": 0.0, "herschel_bulkley": 3.0}, "shear_thinning"),
+    # Newtonian points stay Newtonian without a yield stress, and a rising viscosity is never a yield stress
+    (lambda g: 0.5 + 0 * g, {"power_law": 0.0, "herschel_bulkley": 2.0}, "newtonian"),
+    (lambda g: 0.5 * g ** 0.3, {"power_law": 10.0, "herschel_bulkley": 0.0}, "shear_thickening"),
+])
+def test_joint_fit_decides_the_yield_stress(curve, bics, label):
+    g = np.logspace(-2, 2, 6)
+    points = classify(g, curve(g), np.full(g.size, 0.01), replicates=50)
+    test = joint_yield_test(bics, {"herschel_bulkley"})
+    result = points.with_joint_yield_test(test)
+    assert result.label == label
+    # the confidence: the replicates' share of the slope's verdict (rises or not) times the joint fit's weight
+    share = points.shares
+    if label == "yield_stress":
+        expected = (1 - share["shear_thickening"]) * test.weight
+    elif label == "shear_thinning":
+        expected = (share["shear_thinning"] + share["yield_stress"]) * (1 - test.weight)
+    elif label == "newtonian":
+        expected = share["newtonian"] * (1 - test.weight)
+    else:
+        expected = points.confidence
+    assert result.confidence == pytest.approx(expected)
+    assert result.summary()["yield_test"]["joint"] == (None if label == "shear_thickening" else test.summary())
+    assert sum(share.values()) == pytest.approx(1.0)
 
 
 def test_window_interval_carries_the_simulators_force_error():

@@ -4,12 +4,12 @@ speeds at once. See docs/behaviour.md.
 """
 
 from .apparent import ViscosityPoint, window_viscosity
-from .classify import CLASSES, Classification, Slope, classify, log_slope
+from .classify import CLASSES, Classification, JointYieldTest, Slope, classify, joint_yield_test, log_slope
 from .joint import JointFit, JointProblem, joint_fit
 from .pipeline import JOINT_MODELS, Behaviour, characterise, combined_density
 from .report import write_behaviour_report
 from .windows import SpeedWindow, speed_windows
 
-__all__ = ["CLASSES", "JOINT_MODELS", "Behaviour", "Classification", "JointFit", "JointProblem", "Slope",
-           "SpeedWindow", "ViscosityPoint", "characterise", "classify", "combined_density", "joint_fit",
-           "log_slope", "speed_windows", "window_viscosity", "write_behaviour_report"]
+__all__ = ["CLASSES", "JOINT_MODELS", "Behaviour", "Classification", "JointFit", "JointProblem", "JointYieldTest",
+           "Slope", "SpeedWindow", "ViscosityPoint", "characterise", "classify", "combined_density", "joint_fit",
+           "joint_yield_test", "log_slope", "speed_windows", "window_viscosity", "write_behaviour_report"]

@@ -19,12 +19,24 @@ The confidence is the share of parametric-bootstrap replicates (ln η_i* = ln η
 the same two tests put in the same class: 0.95 for a Newtonian fluid measured without bias, lower for borderline
 ones. B is the Birge ratio of the better description of the points: the Herschel-Bulkley curve's where it was
 fitted (a curved flow curve inflates the straight line's χ² with misfit, not noise), else the line's.
+
+3. **Yield stress from the joint fit** (``with_joint_yield_test``). The per-speed points are Newtonian-equivalent
+   viscosities, and a yield-stress fluid's are not on its flow curve: the unyielded fluid away from the rod does
+   not enter a viscosity at one effective shear rate, and on the lab's yield-stress fluids the points' slope fell
+   short of the law's chord with no curvature left to test (docs/accuracy.md). The laws fitted to every speed at
+   once through the simulator (``joint.joint_fit``) model the plug itself. When they include laws with and
+   without a yield stress, their Schwarz weights w_j = exp(−BIC_j/2) / Σ_l exp(−BIC_l/2) (BIC as −2 ln evidence,
+   equal prior odds; Kass and Raftery 1995, Wagenmakers and Farrell 2004) give the weight W of the laws with a
+   yield stress, and decide the yield stress in place of the points' test for any viscosity that does not rise:
+   **yield_stress** when W > 1/2, else the slope's class (a former **yield_stress** becomes **shear_thinning**).
+   The confidence is then the bootstrap share of the replicates that do not rise times W, or the share of the
+   slope's class times 1 − W.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -56,9 +68,26 @@ class Slope:
 
 
 @dataclass(frozen=True)
+class JointYieldTest:
+    """The joint fit's evidence for a yield stress: ``weight`` W, the Schwarz weight of the laws with one [0-1],
+    and the best law with (``best_yield``) and without (``best_other``) one with ``delta_bic`` = BIC(best_other) −
+    BIC(best_yield), positive where the yield stress is preferred."""
+
+    weight: float
+    best_yield: str
+    best_other: str
+    delta_bic: float
+
+    def summary(self) -> dict:
+        return {"weight": self.weight, "best_yield": self.best_yield, "best_other": self.best_other,
+                "delta_bic": self.delta_bic}
+
+
+@dataclass(frozen=True)
 class Classification:
-    """The class, its bootstrap ``confidence`` [0-1], the slope, the yield-stress test statistic Λ (None with fewer
-    than four speeds or a viscosity that does not fall) and the Herschel-Bulkley fit's parameters."""
+    """The class, its ``confidence`` [0-1], the slope, the yield-stress test statistic Λ (None with fewer than four
+    speeds or a viscosity that does not fall), the Herschel-Bulkley fit's parameters, the share of bootstrap
+    replicates in each class (``shares``), and the joint fit's yield test when it decided (``joint``)."""
 
     label: str
     confidence: float
@@ -66,15 +95,49 @@ class Classification:
     yield_statistic: float | None
     herschel_bulkley: dict | None
     replicates: int
+    shares: dict[str, float]
+    joint: JointYieldTest | None = None
+
+    def with_joint_yield_test(self, test: JointYieldTest | None) -> "Classification":
+        """The class with the yield stress decided by the joint fit's ``test`` (module docstring, 3); unchanged
+        without one or for a viscosity that rises."""
+        if test is None or self.label == "shear_thickening":
+            return self
+        if test.weight > 0.5:
+            label, confidence = "yield_stress", (1.0 - self.shares["shear_thickening"]) * test.weight
+        else:
+            label = "shear_thinning" if self.label == "yield_stress" else self.label
+            falls = self.shares["shear_thinning"] + self.shares["yield_stress"]
+            confidence = (falls if label == "shear_thinning" else self.shares[label]) * (1.0 - test.weight)
+        return replace(self, label=label, confidence=confidence, joint=test)
 
     def summary(self) -> dict:
         return {"class": self.label, "confidence": self.confidence, "slope": self.slope.value,
                 "slope_ci95": list(self.slope.ci95), "slope_std": self.slope.std, "birge_ratio": self.slope.birge,
                 "yield_test": {"statistic": self.yield_statistic, "critical": YIELD_CRITICAL,
-                               "herschel_bulkley": self.herschel_bulkley},
-                "bootstrap_replicates": self.replicates,
-                "method": "slope of ln eta vs ln shear rate (weighted, Birge-scaled, 95 %); yield stress: slope "
-                          "interval holds -1 or Herschel-Bulkley beats the power law (likelihood ratio, 95 %)"}
+                               "herschel_bulkley": self.herschel_bulkley,
+                               "joint": None if self.joint is None else self.joint.summary()},
+                "bootstrap_replicates": self.replicates, "bootstrap_shares": self.shares,
+                "method": "slope of ln eta vs ln shear rate (weighted, Birge-scaled, 95 %); yield stress: the "
+                          + ("Schwarz weight of the joint fit's yield-stress laws above 1/2" if self.joint else
+                             "slope interval holds -1 or Herschel-Bulkley beats the power law (likelihood ratio, "
+                             "95 %)")}
+
+
+def joint_yield_test(bics: dict[str, float], yield_laws: set[str]) -> JointYieldTest | None:
+    """The Schwarz weight of the laws in ``yield_laws`` among the finite ``bics`` of a joint fit (module docstring,
+    3); None unless laws with and without a yield stress were both fitted."""
+    finite = {name: b for name, b in bics.items() if math.isfinite(b)}
+    with_yield = {name: b for name, b in finite.items() if name in yield_laws}
+    others = {name: b for name, b in finite.items() if name not in yield_laws}
+    if not with_yield or not others:
+        return None
+    best = min(finite.values())
+    weights = {name: math.exp(-0.5 * (b - best)) for name, b in finite.items()}
+    best_yield, best_other = min(with_yield, key=with_yield.get), min(others, key=others.get)
+    return JointYieldTest(weight=sum(weights[n] for n in with_yield) / sum(weights.values()),
+                          best_yield=best_yield, best_other=best_other,
+                          delta_bic=others[best_other] - with_yield[best_yield])
 
 
 def log_slope(shear_rate: np.ndarray, viscosity: np.ndarray, log_std: np.ndarray) -> Slope:
@@ -101,10 +164,9 @@ def classify(shear_rate, viscosity, log_std, *, replicates: int = 200, seed: int
     label, slope, statistic, hb = _decide(g, eta, sigma)
     scale = min(slope.birge, hb["birge_ratio"]) if hb else slope.birge  # the better description's scatter
     rng = np.random.default_rng(seed)
-    same = sum(_decide(g, eta * np.exp(scale * sigma * rng.normal(size=g.size)), sigma)[0] == label
-               for _ in range(replicates))
-    confidence = same / replicates if replicates else math.nan
-    return Classification(label, confidence, slope, statistic, hb, replicates)
+    labels = [_decide(g, eta * np.exp(scale * sigma * rng.normal(size=g.size)), sigma)[0] for _ in range(replicates)]
+    shares = {c: labels.count(c) / replicates if replicates else math.nan for c in CLASSES}
+    return Classification(label, shares[label], slope, statistic, hb, replicates, shares)
 
 
 def _decide(g: np.ndarray, eta: np.ndarray, sigma: np.ndarray) -> tuple[str, Slope, float | None, dict | None]:

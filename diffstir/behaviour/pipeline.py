@@ -24,8 +24,9 @@ from ..identify.pipeline import configured_density
 from ..identify.uncertainty import MODEL_FORCE_ERROR
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
+from ..rheology import has_yield_stress
 from .apparent import ViscosityPoint, window_viscosity
-from .classify import Classification, classify
+from .classify import Classification, classify, joint_yield_test
 from .joint import JointFit, joint_fit
 from .windows import speed_windows
 
@@ -61,7 +62,7 @@ class Behaviour:
 
 
 def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
-                 iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 3,
+                 iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, replicates: int = 200,
                  seed: int = 0, model_error: float = MODEL_FORCE_ERROR, workers: int = 1) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
@@ -71,7 +72,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         density: the fluid's density [kg/m³], used only when no recording has a density block.
         iterations: Gauss-Newton iterations of each window's Newtonian fit.
         joint_models: laws fitted to all speeds at once (empty: no joint fit); ``joint_iterations`` their
-            Gauss-Newton iterations.
+            Gauss-Newton iterations. With laws both with and without a yield stress among them, the joint fit
+            decides the yield stress (``classify``, 3).
         speed_tolerance, min_window: what counts as one speed (``windows.speed_windows``).
         replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
@@ -99,8 +101,12 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
     result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used], replicates=replicates,
                       seed=seed)
-    joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
-                      workers=workers) if joint_models else None
+    joint = None
+    if joint_models:
+        joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
+                          workers=workers)
+        result = result.with_joint_yield_test(
+            joint_yield_test(joint.bic, {name for name in joint.fits if has_yield_stress(name)}))
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
 
 

@@ -30,8 +30,13 @@ def markdown(summary: dict) -> str:
              f"{b['birge_ratio']:.2f})",
              f"- density {summary['density']['value']:.1f} kg/m³ ({summary['density']['source']})"]
     if b["yield_test"]["statistic"] is not None:
-        lines.append(f"- yield-stress test: Λ = {b['yield_test']['statistic']:.2f} (critical "
+        lines.append(f"- yield-stress test on the points: Λ = {b['yield_test']['statistic']:.2f} (critical "
                      f"{b['yield_test']['critical']:.2f})")
+    joint_test = b["yield_test"]["joint"]
+    if joint_test is not None:
+        lines.append(f"- yield stress by the joint fit: weight of the yield-stress laws {joint_test['weight']:.3f} "
+                     f"(decides above 0.5); {joint_test['best_yield']} against {joint_test['best_other']}, "
+                     f"ΔBIC {joint_test['delta_bic']:+.1f}")
     lines += [f"- Metzner-Otto constant k_s = {summary['metzner_otto']['value']:.3g} (γ̇_eff = k_s U / a)", "",
               "| window | speed [m/s] | γ̇_eff [1/s] (measured) | η [Pa·s] (95 % CI) | classified |",
               "|---|---|---|---|---|"]

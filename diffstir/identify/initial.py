@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..rheology import LAWS, within_bounds
+from ..rheology import LAWS, has_yield_stress, within_bounds
 from .models import FitModel
 from .optimise import Readings
 from .problem import StirProblem
@@ -186,7 +186,7 @@ def newtonian_embedding(name: str, eta_n: float, shear_rate: float) -> FitModel:
 def initial_models(name: str, eta_n: float, shear_rate: float, dt: float | None = None) -> list[FitModel]:
     """The starts :func:`initial_model` offers for ``name``: one per ``YIELD_SHARES`` for a yield-stress law,
     one otherwise."""
-    if name in LAWS and "tau_y" in LAWS[name].specs:
+    if has_yield_stress(name):
         return [initial_model(name, eta_n, shear_rate, dt, share) for share in YIELD_SHARES]
     return [initial_model(name, eta_n, shear_rate, dt)]
 

@@ -22,6 +22,7 @@ from diffstir.rheology.laws import (
     RegularisedLaw,
     RheologyLaw,
     Tabulated,
+    has_yield_stress,
     make_law,
     within_bounds,
 )
@@ -42,6 +43,7 @@ __all__ = [
     "bundled_flow_curves",
     "fit_flow_curve",
     "load_flow_curves",
+    "has_yield_stress",
     "make_law",
     "rank_laws",
     "within_bounds",

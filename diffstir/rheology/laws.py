@@ -430,6 +430,12 @@ LAWS: dict[str, type[RheologyLaw]] = {
 }
 
 
+def has_yield_stress(name: str) -> bool:
+    """Whether the law registered as ``name`` has a yield stress τ_y among its parameters (False for a name that is
+    not in :data:`LAWS`, such as the corotated baseline)."""
+    return name in LAWS and "tau_y" in LAWS[name].specs
+
+
 def make_law(name: str, **params) -> RheologyLaw:
     """Build the law registered as ``name`` in :data:`LAWS` from SI keyword values (and ``bounds``, ``dtype``,
     ``device``, and ``shear_rate_reg`` for the regularised laws).
