@@ -101,16 +101,15 @@ def test_model_flow_curves_get_their_class(label, viscosity):
 
 def test_joint_yield_test_is_the_schwarz_weight_of_the_yield_stress_laws():
     # BIC = -2 ln(evidence): two laws 2 apart have posterior odds e, so the better one's weight is e / (1 + e)
-    test = joint_yield_test({"power_law": 10.0, "herschel_bulkley": 8.0}, {"herschel_bulkley"})
+    test = joint_yield_test({"power_law": 10.0, "herschel_bulkley": 8.0})
     assert test.weight == pytest.approx(math.e / (1 + math.e))
     assert (test.best_yield, test.best_other, test.delta_bic) == ("herschel_bulkley", "power_law", 2.0)
     # weights add over laws: two yield laws of equal BIC against one law 2 ln 2 better hold half
-    test = joint_yield_test({"herschel_bulkley": 5.0, "bingham": 5.0, "cross": 5.0 - 2 * math.log(2)},
-                            {"herschel_bulkley", "bingham"})
+    test = joint_yield_test({"herschel_bulkley": 5.0, "bingham": 5.0, "cross": 5.0 - 2 * math.log(2)})
     assert test.weight == pytest.approx(0.5)
     # no decision without laws on both sides, and a failed fit (NaN BIC) takes no part
-    assert joint_yield_test({"newtonian": 1.0, "power_law": 0.0}, {"herschel_bulkley"}) is None
-    assert joint_yield_test({"herschel_bulkley": math.nan, "power_law": 0.0}, {"herschel_bulkley"}) is None
+    assert joint_yield_test({"newtonian": 1.0, "power_law": 0.0}) is None
+    assert joint_yield_test({"herschel_bulkley": math.nan, "power_law": 0.0}) is None
 
 
 @pytest.mark.parametrize("curve,bics,label", [
@@ -125,7 +124,7 @@ def test_joint_yield_test_is_the_schwarz_weight_of_the_yield_stress_laws():
 def test_joint_fit_decides_the_yield_stress(curve, bics, label):
     g = np.logspace(-2, 2, 6)
     points = classify(g, curve(g), np.full(g.size, 0.01), replicates=50)
-    test = joint_yield_test(bics, {"herschel_bulkley"})
+    test = joint_yield_test(bics)
     result = points.with_joint_yield_test(test)
     assert result.label == label
     # the confidence: the replicates' share of the slope's verdict (rises or not) times the joint fit's weight

@@ -42,7 +42,7 @@ import numpy as np
 from scipy import stats
 
 from ..identify.uncertainty import Z95
-from ..rheology import FlowCurve, fit_flow_curve
+from ..rheology import FlowCurve, fit_flow_curve, has_yield_stress
 
 CLASSES = ("newtonian", "shear_thinning", "shear_thickening", "yield_stress")
 #: 95 % point of the ½χ²₀ + ½χ²₁ mixture: the χ²₁ 90 % point.
@@ -124,12 +124,12 @@ class Classification:
                              "95 %)")}
 
 
-def joint_yield_test(bics: dict[str, float], yield_laws: set[str]) -> JointYieldTest | None:
-    """The Schwarz weight of the laws in ``yield_laws`` among the finite ``bics`` of a joint fit (module docstring,
-    3); None unless laws with and without a yield stress were both fitted."""
+def joint_yield_test(bics: dict[str, float]) -> JointYieldTest | None:
+    """The Schwarz weight of the laws with a yield stress (``rheology.has_yield_stress``) among the finite ``bics``
+    of a joint fit, by law name (module docstring, 3); None unless laws with and without one were both fitted."""
     finite = {name: b for name, b in bics.items() if math.isfinite(b)}
-    with_yield = {name: b for name, b in finite.items() if name in yield_laws}
-    others = {name: b for name, b in finite.items() if name not in yield_laws}
+    with_yield = {name: b for name, b in finite.items() if has_yield_stress(name)}
+    others = {name: b for name, b in finite.items() if not has_yield_stress(name)}
     if not with_yield or not others:
         return None
     best = min(finite.values())

@@ -128,7 +128,8 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
         first.append(FitJob("joint", f"{name}/start0", problem, model, iterations, "lm", NO_NUISANCE))
     with Workers(workers, report=lambda event: None) as pool:
         best = {job.model.name: fit for job, fit in zip(first, pool.map(first))}
-        reference = _stress_reference(best, g) or curve
+        reference = _stress_reference(best, g)
+        reference = curve if reference is None else reference
         pastes = [FitJob("joint", f"{name}/start1", problem, paste_start(name, reference), iterations, "lm",
                          NO_NUISANCE) for name in models if has_yield_stress(name)]
         for job, fit in zip(pastes, pool.map(pastes)):

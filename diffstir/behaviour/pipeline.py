@@ -24,7 +24,6 @@ from ..identify.pipeline import configured_density
 from ..identify.uncertainty import MODEL_FORCE_ERROR
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
-from ..rheology import has_yield_stress
 from .apparent import ViscosityPoint, window_viscosity
 from .classify import Classification, classify, joint_yield_test
 from .joint import JointFit, joint_fit
@@ -105,8 +104,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     if joint_models:
         joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
                           workers=workers)
-        result = result.with_joint_yield_test(
-            joint_yield_test(joint.bic, {name for name in joint.fits if has_yield_stress(name)}))
+        result = result.with_joint_yield_test(joint_yield_test(joint.bic))
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
 
 

@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from ..rheology import has_yield_stress
 from .models import FitModel
 from .uncertainty import Z95, Uncertainty, delta_variance
 
@@ -52,9 +53,8 @@ def law_family(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty, ban
     slope = float(np.log(eta[1] / eta[0])) / width
     half = Z95 * math.sqrt(float(delta_variance(((grad[1] - grad[0]) / width)[None], uncertainty.covariance)[0]))
     share = 0.0
-    params = model.params_si()
-    if "tau_y" in params:
-        share = params["tau_y"] / max(eta_eff * effective_shear_rate, 1e-300)
+    if has_yield_stress(model.name):
+        share = model.params_si()["tau_y"] / max(eta_eff * effective_shear_rate, 1e-300)
     if share >= YIELD_SHARE:
         cls = "yield_stress"
     elif abs(slope) * width < NEWTONIAN_CHANGE:
