@@ -13,10 +13,11 @@ import torch
 from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows
 from diffstir.behaviour.apparent import with_baseline
 from diffstir.behaviour.classify import YIELD_CRITICAL
-from diffstir.behaviour.joint import joint_fit
+from diffstir.behaviour.joint import joint_fit, paste_start
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
+from diffstir.rheology import FlowCurve
 from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, save_recording
 
 # 1 cm cells, the rod 2.5 across, the sound speed 6 times the fastest stir, the viscosity capped at 5 Pa s, steps of
@@ -110,6 +111,22 @@ def test_joint_yield_test_is_the_schwarz_weight_of_the_yield_stress_laws():
     # no decision without laws on both sides, and a failed fit (NaN BIC) takes no part
     assert joint_yield_test({"newtonian": 1.0, "power_law": 0.0}) is None
     assert joint_yield_test({"herschel_bulkley": math.nan, "power_law": 0.0}) is None
+
+
+def test_paste_start_splits_the_stress_into_yield_and_flow():
+    # a Herschel-Bulkley curve τ = τ_y + k γ̇ⁿ started with its own yield share is recovered exactly (the excess is
+    # then a power law), and a trace of yield stress on a power law's curve leaves its k and n where they were
+    rate = np.logspace(0, 1.5, 5)
+    hb = paste_start("herschel_bulkley", FlowCurve(rate, 1.0 + 0.5 * rate ** 0.6), yield_share=1.0 / (1.0 + 0.5))
+    assert hb.params_si() == pytest.approx({"tau_y": 1.0, "k": 0.5, "n": 0.6}, rel=1e-5)
+    share = 0.01
+    traced = paste_start("herschel_bulkley", FlowCurve(rate, 3.0 * rate ** 0.4), yield_share=share)
+    assert traced.params_si()["tau_y"] == pytest.approx(share * 3.0, rel=1e-5)
+    # the excess 3 γ̇^0.4 − 0.03 is within 1 % of the power law, so its log fit moves n and k by about that share
+    assert traced.params_si()["n"] == pytest.approx(0.4, abs=share)
+    assert traced.params_si()["k"] == pytest.approx(3.0, rel=2 * share)
+    with pytest.raises(ValueError, match="yield_share"):
+        paste_start("bingham", FlowCurve(rate, rate), yield_share=1.0)
 
 
 @pytest.mark.parametrize("curve,bics,label", [
