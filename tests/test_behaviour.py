@@ -129,6 +129,21 @@ def test_paste_start_splits_the_stress_into_yield_and_flow():
         paste_start("bingham", FlowCurve(rate, rate), yield_share=1.0)
 
 
+def test_an_immaterial_yield_stress_counts_as_a_liquid():
+    # Herschel-Bulkley 10 better than the power law: odds e^5 for it, unless its yield stress carries less of the
+    # slowest stress than the material share, where it is a liquid at the stirred rates
+    bics = {"power_law": 10.0, "herschel_bulkley": 0.0}
+    material = joint_yield_test(bics, {"herschel_bulkley": 0.3}, min_share=0.1)
+    assert material.weight == pytest.approx(math.exp(5) / (1 + math.exp(5)))
+    immaterial = joint_yield_test(bics, {"herschel_bulkley": 0.03}, min_share=0.1)
+    assert immaterial.weight == 0.0 and immaterial.delta_bic == 10.0  # the evidence is still reported
+    assert immaterial.summary()["yield_shares"] == {"herschel_bulkley": 0.03}
+    # of two yield laws only the material one counts: one of three equal weights
+    both = joint_yield_test({"power_law": 0.0, "herschel_bulkley": 0.0, "bingham": 0.0},
+                            {"herschel_bulkley": 0.5, "bingham": 0.01}, min_share=0.1)
+    assert both.weight == pytest.approx(1 / 3)
+
+
 @pytest.mark.parametrize("curve,bics,label", [
     # a power law's points, but the joint fit (through the simulator, which models the plug) needs a yield stress
     (lambda g: 0.5 * g ** -0.4, {"power_law": 10.0, "herschel_bulkley": 0.0}, "yield_stress"),

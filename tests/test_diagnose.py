@@ -14,7 +14,8 @@ import torch
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
 from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
 from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, scaled_law
-from diffstir.diagnose.compare import DISTINCT, NONE, fit_physics, fit_sensor, rank, reachable_rss
+from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, NONE, REANCHORS, ScaleReadings, fit_physics,
+                                      fit_sensor, rank, reachable_rss)
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify import StirProblem, Windows
 from diffstir.identify.problem import rig_from_recording
@@ -106,6 +107,30 @@ def test_sensor_candidates_recover_their_effect_and_win(effect, truth):
         assert fit.loss < 0.5 * fits["none"].loss
     # a 95 % interval misses the truth in more than one of five seeds with probability 2 %
     assert all(count >= SEEDS - 1 for count in covered.values()), covered
+
+
+def test_a_sensor_fit_beyond_the_linear_range_is_reanchored_on_a_simulation():
+    # a dead band read on a fluid 65 % more viscous than the base law (ln s = 0.5): a Newtonian drag is p0 s, so the
+    # linearised reading p0 (1 + ln s) can match it only at ln s = e^0.5 − 1 = 0.65
+    ctx = synthetic_context(None)
+    truth, band = 0.5, 0.01
+    clean = SENSOR_CANDIDATES["sensor_deadband"].reading(ctx.base_reading * math.exp(truth), ctx, {"dead_band": band})
+    ctx.measured = clean + np.random.default_rng(0).normal(0.0, NOISE, clean.size)
+    linear = fit_sensor(SENSOR_CANDIDATES["sensor_deadband"], ctx)
+    assert math.log(linear.params["viscosity_scale"]) == pytest.approx(math.exp(truth) - 1, abs=0.02)
+    assert linear.warning is not None and linear.simulations == 0
+    scales = []
+    readings = ScaleReadings(ctx, lambda s: scales.append(s) or ctx.base_reading * s)
+    anchored = fit_sensor(SENSOR_CANDIDATES["sensor_deadband"], ctx, readings)
+    assert anchored.warning is None and anchored.simulations == len(scales) and 1 <= len(scales) <= REANCHORS
+    # the quadratic through p0 (slope p0 at 0) and the last anchor a misses p0 e^u by e^ξ u² |u − a| / 6, which
+    # moves ln s by as much; the rest is the fit's own statistical error
+    u, a = math.log(anchored.params["viscosity_scale"]), math.log(scales[-1])
+    assert abs(u - a) <= ANCHOR_RANGE
+    model_error = math.exp(max(u, a)) * u**2 * abs(u - a) / 6 / math.exp(u)
+    lo, hi = (math.log(v) for v in anchored.ci95["viscosity_scale"])
+    assert u == pytest.approx(truth, abs=model_error + 1.5 * (hi - lo) / 2)
+    assert anchored.ci95["dead_band"][0] < band < anchored.ci95["dead_band"][1]
 
 
 def test_no_effect_is_named_in_clean_readings():

@@ -118,6 +118,17 @@ class JointFit:
         return {"selected": self.selected, "ranking": rank(self.bic), "laws": laws,
                 "criterion": "bic over the readings of every window"}
 
+    def yield_shares(self, shear_rate: float) -> dict[str, float]:
+        """Each yield-stress law's share of its stress at ``shear_rate`` [1/s] carried by its yield stress,
+        τ_y / (η(γ̇) γ̇) [1]."""
+        shares = {}
+        for name, fit in self.fits.items():
+            if has_yield_stress(name):
+                eta, _ = fit.model.viscosity(np.array([shear_rate]), fit.theta)
+                tau_y = fit.model.si_of_theta(fit.theta)[fit.model.names.index("tau_y")]
+                shares[name] = float(tau_y / (eta[0] * shear_rate))
+        return shares
+
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,
               models: list[str], *, iterations: int = 5, workers: int = 1) -> JointFit:

@@ -25,7 +25,7 @@ from ..identify.uncertainty import MODEL_FORCE_ERROR
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .apparent import ViscosityPoint, window_viscosity
-from .classify import Classification, classify, joint_yield_test
+from .classify import YIELD_SHARE_SIGMAS, Classification, classify, joint_yield_test
 from .joint import JointFit, joint_fit
 from .windows import speed_windows
 
@@ -72,7 +72,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         iterations: Gauss-Newton iterations of each window's Newtonian fit.
         joint_models: laws fitted to all speeds at once (empty: no joint fit); ``joint_iterations`` their
             Gauss-Newton iterations. With laws both with and without a yield stress among them, the joint fit
-            decides the yield stress (``classify``, 3).
+            decides the yield stress (``classify``, 3), counting a yield stress that carries more than
+            ``YIELD_SHARE_SIGMAS`` σ_m of the stress at the slowest speed.
         speed_tolerance, min_window: what counts as one speed (``windows.speed_windows``).
         replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
@@ -104,7 +105,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     if joint_models:
         joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
                           workers=workers)
-        result = result.with_joint_yield_test(joint_yield_test(joint.bic))
+        test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())), YIELD_SHARE_SIGMAS * model_error)
+        result = result.with_joint_yield_test(test)
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
 
 

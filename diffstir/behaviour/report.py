@@ -37,6 +37,10 @@ def markdown(summary: dict) -> str:
         lines.append(f"- yield stress by the joint fit: weight of the yield-stress laws {joint_test['weight']:.3f} "
                      f"(decides above 0.5); {joint_test['best_yield']} against {joint_test['best_other']}, "
                      f"ΔBIC {joint_test['delta_bic']:+.1f}")
+        if joint_test["yield_shares"] is not None:
+            shares = ", ".join(f"{name} {share:.1%}" for name, share in joint_test["yield_shares"].items())
+            lines.append(f"  - yield stress's share of the slowest stress: {shares} (counts from "
+                         f"{joint_test['min_share']:.1%}, twice the simulator's force error)")
     lines += [f"- Metzner-Otto constant k_s = {summary['metzner_otto']['value']:.3g} (γ̇_eff = k_s U / a)", "",
               "| window | speed [m/s] | γ̇_eff [1/s] (measured) | η [Pa·s] (95 % CI) | classified |",
               "|---|---|---|---|---|"]
