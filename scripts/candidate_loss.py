@@ -7,6 +7,11 @@ its Newtonian law identified the same way; then the physics candidate is simulat
 
     python scripts/candidate_loss.py --fluid castor_oil --effect thixotropy --candidate thixotropy --eta 0.65 \\
         --params alpha=1,breakdown=0.3,rebuild_time=2 alpha=1,breakdown=0.3,rebuild_time=1
+
+Without ``--params`` it prints how far the sensor candidates' linearised base reading p0 + (d p/d ln s) ln s is
+from the law simulated at ``--eta`` (``diffstir.diagnose.compare.ScaleReadings``):
+
+    python scripts/candidate_loss.py --fluid castor_oil --effect sensor_deadband --eta 0.6
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import torch
 
 from diagnosis_benchmark import STRENGTHS, Lab, coarse, fluids
 from diffstir.diagnose.base import base_from_identification
-from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel
+from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel, scaled_law
 from diffstir.identify import StirProblem, Windows, identify
 from diffstir.identify.initial import characteristic_shear_rate
 
@@ -38,7 +43,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the case")
     parser.add_argument("--candidate", default="thixotropy", choices=list(PHYSICS_CANDIDATES))
     parser.add_argument("--eta", type=float, required=True, help="the law's viscosity [Pa s]")
-    parser.add_argument("--params", nargs="+", required=True, help="candidate parameters, name=value,...")
+    parser.add_argument("--params", nargs="+", default=[], help="candidate parameters, name=value,... (none: the "
+                        "linearised base reading's gap at --eta)")
     parser.add_argument("--identify-iterations", type=int, default=3, help="as the benchmark's")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -58,6 +64,15 @@ def main() -> None:
     replay = CachedReplay(problem, model)  # simulates the model's material with its slip length, as the fits do
     print(f"{args.effect} concealed in {args.fluid} (truth {truth}), seed {args.seed}; identified η "
           f"{eta_identified:.4g} Pa·s, its loss {problem.loss(base.predicted):.5f} N")
+    if not args.params:
+        scale = args.eta / eta_identified
+        with torch.no_grad():
+            simulated = problem.simulate(scaled_law(base.law, scale)).double().numpy()
+        linearised = base.predicted + base.scale_column * np.log(scale)
+        print(f"at η = {args.eta:g} Pa·s (ln s = {np.log(scale):.3f}): mean |linearised − simulated| "
+              f"{np.mean(np.abs(linearised - simulated)):.5f} N; loss of the simulated law "
+              f"{problem.loss(simulated):.5f} N, of the linearised reading {problem.loss(linearised):.5f} N")
+        return
     print(f"| {args.candidate} parameters | η [Pa·s] | loss [N] |\n|---|---|---|")
     for text in args.params:
         values = {**model.params_si(), **parse(text), "viscosity_scale": args.eta / eta_identified}

@@ -22,8 +22,8 @@ from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeomet
 
 # 1 cm cells, the rod 2.5 across, the sound speed 6 times the fastest stir, the viscosity capped at 5 Pa s, steps of
 # 3.6 ms: a fast stand-in for the pipeline's statistics, the same model for the truth and the fit, with APIC
-# transfers and each particle's own J. On so coarse a grid the default FLIP share and packing relaxation make the readings jump
-# with η at steps of 1e-3 in ln η and differ between the truth's and the fit's replay of the rod's path
+# transfers and each particle's own J. On so coarse a grid the default FLIP share and packing relaxation make the
+# readings jump with η at steps of 1e-3 in ln η and differ between the truth's and the fit's replay of the rod's path
 # (docs/validation.md); the numerics themselves are tested at the fitting resolution (test_mpm, test_numerics)
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=1.0, dt_max=0.004, viscosity_cap=5.0, flip=0.0,
                  volume_relaxation=0.0)

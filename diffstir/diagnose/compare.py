@@ -58,8 +58,8 @@ DISTINCT = 6.0   # ΔBIC between the best two for them to be told apart
 EXPLAINED = 0.5  # share of the residual variance above the noise that the named effect must remove
 #: How far in ln s from a simulated scale a sensor candidate's base reading is trusted [1]. At ln s = 0.19 the
 #: linearised reading p0 + (d p/d ln s) ln s was off the simulation by 5 mN, about a tenth of the reading (castor
-#: oil with a dead band, docs/diagnosis.md): the identification's sound speed is held fixed, the truth's follows the viscosity, and the
-#: column is a Broyden secant. Within 0.05 of an anchor the reading is that simulation's to first order in ln s.
+#: oil with a dead band, docs/diagnosis.md): the identification's sound speed is held fixed, the truth's follows
+#: the viscosity, and the column is a Broyden secant. Within 0.05 of an anchor the reading is that simulation's to first order in ln s.
 ANCHOR_RANGE = 0.05
 #: Simulations a sensor candidate may spend re-anchoring its base reading at the scale it fitted.
 REANCHORS = 2
