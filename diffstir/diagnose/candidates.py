@@ -4,8 +4,9 @@ Every candidate refits the base law's viscosity scale s (a factor on each of its
 η(γ̇) → s η(γ̇)) beside its own parameters, so that it competes with the base law on equal terms; ``none`` is
 the base law with s alone.
 
-Sensor candidates act on the base law's simulated reading p(t) (linearised in ln s through the fit's Jacobian,
-p = p0 + J_s ln s) and cost no simulation:
+Sensor candidates act on the base law's simulated reading p(t) at the scale s (linearised in ln s through the
+fit's Jacobian, p = p0 + J_s ln s, and re-anchored on a simulation where a fit moves s far,
+``compare.ScaleReadings``), so they cost at most a simulation or two:
 
 * ``sensor_lag``:       τ dy/dt = p − y (first-order response, beyond any the recording states)  τ [s]
 * ``sensor_deadband``:  y = sign(p) max(|p| − d, 0) (readings below d lost)                d [N]
