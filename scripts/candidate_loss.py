@@ -22,8 +22,9 @@ import numpy as np
 import torch
 
 from diagnosis_benchmark import STRENGTHS, Lab, coarse, fluids
-from diffstir.diagnose.base import base_from_identification
+from diffstir.diagnose.base import base_from_identification, simulated_reading
 from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel, scaled_law
+from diffstir.diagnose.compare import ScaleReadings
 from diffstir.identify import StirProblem, Windows, identify
 from diffstir.identify.initial import characteristic_shear_rate
 
@@ -66,9 +67,8 @@ def main() -> None:
           f"{eta_identified:.4g} Pa·s, its loss {problem.loss(base.predicted):.5f} N")
     if not args.params:
         scale = args.eta / eta_identified
-        with torch.no_grad():
-            simulated = problem.simulate(scaled_law(base.law, scale)).double().numpy()
-        linearised = base.predicted + base.scale_column * np.log(scale)
+        simulated = simulated_reading(problem, scaled_law(base.law, scale))
+        linearised = ScaleReadings(ctx).model(0.0)(np.log(scale))
         print(f"at η = {args.eta:g} Pa·s (ln s = {np.log(scale):.3f}): mean |linearised − simulated| "
               f"{np.mean(np.abs(linearised - simulated)):.5f} N; loss of the simulated law "
               f"{problem.loss(simulated):.5f} N, of the linearised reading {problem.loss(linearised):.5f} N")

@@ -17,8 +17,8 @@ from diffstir.behaviour.joint import joint_fit, paste_start
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
-from diffstir.rheology import FlowCurve
 from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, save_recording
+from diffstir.rheology import FlowCurve
 
 # 1 cm cells, the rod 2.5 across, the sound speed 6 times the fastest stir, the viscosity capped at 5 Pa s, steps of
 # 3.6 ms: a fast stand-in for the pipeline's statistics, the same model for the truth and the fit, with APIC

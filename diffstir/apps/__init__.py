@@ -10,6 +10,7 @@ from diffstir.parallel import default_workers
 #: whether started as console scripts, with python -m, or from another working directory.
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
+
 def config_workers(cfg: DictConfig) -> int:
     """The config's ``workers``: processes for fits side by side (null: one per CPU, one on a GPU)."""
     return default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers)

@@ -65,11 +65,16 @@ def stress_columns(law: RheologyLaw) -> list[int]:
     return [i for i, k in enumerate(law.params) if "Pa" in law.units[k]]
 
 
+def simulated_reading(problem: StirProblem, law: RheologyLaw) -> np.ndarray:
+    """``problem``'s simulated readings [N] for ``law``, without gradient, (M,) float64."""
+    with torch.no_grad():
+        return problem.simulate(law).double().numpy()
+
+
 def simulate_base(problem: StirProblem, law: RheologyLaw, density: float, source: str) -> BaseFit:
     """The base reading and its viscosity-scale column by simulation (two runs)."""
-    with torch.no_grad():
-        p0 = problem.simulate(law).double().numpy()
-        p1 = problem.simulate(scaled_law(law, 1.0 + SCALE_STEP)).double().numpy()
+    p0 = simulated_reading(problem, law)
+    p1 = simulated_reading(problem, scaled_law(law, 1.0 + SCALE_STEP))
     return BaseFit(copy.deepcopy(law), density, p0, (p1 - p0) / math.log(1.0 + SCALE_STEP), 2, source)
 
 

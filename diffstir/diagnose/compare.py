@@ -40,14 +40,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from scipy import optimize
 
 from ..identify.optimise import Readings, fit_model
 from ..identify.selection import bic, bic_of_rss
 from ..identify.uncertainty import effective_samples, laplace
 from ..parallel import Workers
-from .base import residual_test
+from .base import residual_test, simulated_reading
 from .candidates import (
     PHYSICS_CANDIDATES, SCALE, SENSOR_CANDIDATES, YIELD_SUMMARY, CachedReplay, Context, Parametrisation,
     PhysicsModel, SensorCandidate, scaled_law, yield_model,
@@ -59,7 +58,8 @@ EXPLAINED = 0.5  # share of the residual variance above the noise that the named
 #: How far in ln s from a simulated scale a sensor candidate's base reading is trusted [1]. At ln s = 0.19 the
 #: linearised reading p0 + (d p/d ln s) ln s was off the simulation by 5 mN, about a tenth of the reading (castor
 #: oil with a dead band, docs/diagnosis.md): the identification's sound speed is held fixed, the truth's follows
-#: the viscosity, and the column is a Broyden secant. Within 0.05 of an anchor the reading is that simulation's to first order in ln s.
+#: the viscosity, and the column is a Broyden secant. Within 0.05 of an anchor the reading is that simulation's to
+#: first order in ln s.
 ANCHOR_RANGE = 0.05
 #: Simulations a sensor candidate may spend re-anchoring its base reading at the scale it fitted.
 REANCHORS = 2
@@ -277,7 +277,7 @@ def fit_candidates(names: list[str], ctx: Context, problem, *, max_iterations: i
     candidates, each a few simulations, run side by side in ``workers`` processes; with ``resume`` (earlier fits
     by name) a physics candidate goes on from its earlier fit (``fit_physics``)."""
     fits = {}
-    readings = ScaleReadings(ctx, lambda s: _simulate(problem, scaled_law(ctx.law, s)))
+    readings = ScaleReadings(ctx, lambda s: simulated_reading(problem, scaled_law(ctx.law, s)))
     for name in names:
         if name == "none":
             fits[name] = fit_sensor(NONE, ctx, readings)
@@ -297,12 +297,6 @@ def fit_candidates(names: list[str], ctx: Context, problem, *, max_iterations: i
             if on_fit is not None:
                 on_fit(fit)
     return {name: fits[name] for name in names}
-
-
-def _simulate(problem, law) -> np.ndarray:
-    """``problem``'s simulated readings [N] for ``law``, without gradient."""
-    with torch.no_grad():
-        return problem.simulate(law).double().numpy()
 
 
 def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> tuple[list[dict], str, dict]:
