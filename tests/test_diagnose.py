@@ -18,7 +18,7 @@ from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, NONE, REANCHORS, 
                                       fit_sensor, rank, reachable_rss)
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify import StirProblem, Windows
-from diffstir.identify.problem import rig_from_recording
+from diffstir.identify.problem import rig_from_recording, trajectory_from_recording
 from diffstir.lab import first_order_lag, stirring_programme
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import CupGeometry, Recording, RodGeometry, SensorSpec, sensor_reading_np
@@ -227,8 +227,9 @@ def lagged_recording(tau, eta=0.8, seed=0, durations=(0.4, 0.2, 0.4)):
     sensor = SensorSpec(mode="component", axis=(0.0, 1.0), resolution=0.001, sample_rate=RATE)
     blank = Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                       force=np.zeros(traj.t.size), name="lagged")
-    with torch.no_grad():
-        result = StirringSimulator(Newtonian(eta=eta), rig_from_recording(blank), FAST, density=1000.0)(traj)
+    with torch.no_grad():  # the path the fitter replays: the spline through the recorded poses
+        result = StirringSimulator(Newtonian(eta=eta), rig_from_recording(blank), FAST, density=1000.0)(
+            trajectory_from_recording(blank))
     t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
     force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
     reading = first_order_lag(sensor_reading_np(force, blank.velocity(), sensor), 1 / RATE, tau)

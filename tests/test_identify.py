@@ -12,7 +12,7 @@ from diffstir.identify import FitModel, identify
 from diffstir.identify.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
                                       newtonian_embedding)
 from diffstir.identify.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
-from diffstir.identify.problem import StirProblem, Windows, rig_from_recording
+from diffstir.identify.problem import StirProblem, Windows, rig_from_recording, trajectory_from_recording
 from diffstir.identify.selection import bic, select
 from diffstir.identify.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
 from diffstir.mpm import SimConfig, StirringSimulator
@@ -21,7 +21,7 @@ from diffstir.lab import SensorModel
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, sensor_reading_np,
                                 trajectory_at)
 from diffstir.rheology import Carreau, Newtonian
-from diffstir.trajectory import circle
+from diffstir.trajectory import Trajectory, circle, through_samples
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # the rod is 2.5 cells across: coarse, but the same model
 NOISE = 0.002  # N, the synthetic sensor's white noise
@@ -36,8 +36,9 @@ def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST, tim
     sensor = SensorSpec(mode="tangential", resolution=0.001, sample_rate=250, time_constant=time_constant)
     blank = Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                       force=np.zeros(len(traj.t)), name="synthetic")
-    with torch.no_grad():
-        result = StirringSimulator(law, rig_from_recording(blank), config, density=1000.0)(traj)
+    with torch.no_grad():  # the path the fitter replays: the spline through the recorded poses
+        result = StirringSimulator(law, rig_from_recording(blank), config, density=1000.0)(
+            trajectory_from_recording(blank))
     t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
     if time_constant is None:
         force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
@@ -55,6 +56,29 @@ def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST, tim
 @pytest.fixture(scope="module")
 def newtonian_recording():
     return synthetic_recording(Newtonian(eta=TRUE_ETA))
+
+
+def test_a_recorded_path_is_replayed_along_the_smooth_curve_through_its_samples():
+    # a circle of radius R at speed U sampled every h: chords turn the velocity by ω h (ω = U/R, 0.04 rad here) at
+    # each sample, so a chord's direction is up to ω h / 2 off the tangent; the cubic spline's velocity is off by
+    # R ω⁴ h³ / 24 (3e-6 of U) and the dense samples' central differences by (ω / REPLAY_RATE)² / 6 (2e-7)
+    radius, speed, h = 0.015, 0.06, 0.01
+    t = np.arange(0.0, 1.0 + h / 2, h)
+    omega = speed / radius
+    xy = radius * np.stack([np.cos(omega * t), np.sin(omega * t)], axis=-1)
+
+    def direction_error(trajectory):
+        inner = (trajectory.t > t[3]) & (trajectory.t < t[-4])  # the not-a-knot ends are first-order there
+        v = trajectory.velocity()[inner]
+        tangent = np.stack([-np.sin(omega * trajectory.t[inner]), np.cos(omega * trajectory.t[inner])], axis=-1)
+        cross = tangent[:, 0] * v[:, 1] - tangent[:, 1] * v[:, 0]
+        return np.max(np.abs(np.arcsin(cross / np.linalg.norm(v, axis=-1))))
+
+    replay = through_samples(t, xy)
+    np.testing.assert_allclose(replay.poses(t)[0], xy, atol=1e-12)  # through the samples
+    assert direction_error(replay) < 1e-4
+    chords = Trajectory(replay.t, Trajectory(t, xy, 0.0, 0.0).poses(replay.t)[0], 0.0, 0.0)
+    assert direction_error(chords) > 0.9 * omega * h / 2  # what the spline replaces
 
 
 def test_theta_round_trip_and_bounds():
@@ -427,7 +451,7 @@ def test_fit_sweeps_recordings_with_hydra_multirun(tmp_path, launcher):
     sweep = tmp_path / "sweep"
     command = [sys.executable, "-m", "diffstir.fit", "-m", f"recording={paths[0]},{paths[1]}",
                f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}", "model=[newtonian]", "baseline=false",
-               "density=1000", "~coarse", "sim.dx=0.01", "fit.window=0.3", "fit.max_iterations=2", "progress=false",
+               "density=1000", "~coarse", "sim.dx=0.01", "fit.window=0.3", "fit.max_iterations=1", "progress=false",
                "rectifier.checkpoint=null"]
     if launcher == "joblib":
         command += ["hydra.launcher.n_jobs=2"]

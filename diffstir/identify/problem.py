@@ -20,7 +20,7 @@ from ..recording import Recording, RecordingError
 from ..recording.resample import resample_force
 from ..recording.sensor import sensor_history_at, sensor_reading
 from ..rig import Cup, Rig, Rod
-from ..trajectory import Trajectory
+from ..trajectory import Trajectory, through_samples
 
 #: Headroom above the fluid for the simulated cup [m]: the paper's cup is 16.5 cm tall and filled to 13 cm.
 CUP_HEADROOM = 0.035
@@ -56,10 +56,11 @@ def rig_from_recording(rec: Recording) -> Rig:
 
 
 def trajectory_from_recording(rec: Recording, end: float | None = None) -> Trajectory:
-    """The rod's recorded path up to ``end`` [s] (one sample past it, so that interpolation covers it)."""
+    """The rod's recorded path up to ``end`` [s] (one sample past it, so that interpolation covers it), replayed
+    along the smooth curve through the samples (``trajectory.through_samples``), not along their chords."""
     last = rec.t.size if end is None else min(rec.t.size, int(np.searchsorted(rec.t, end, side="right")) + 1)
-    z = np.zeros(last) if rec.z is None else rec.z[:last]
-    return Trajectory(t=rec.t[:last], xy=np.stack([rec.x[:last], rec.y[:last]], axis=-1), z=z, angle=0.0)
+    z = 0.0 if rec.z is None else rec.z[:last]
+    return through_samples(rec.t[:last], np.stack([rec.x[:last], rec.y[:last]], axis=-1), z)
 
 
 class StirProblem:

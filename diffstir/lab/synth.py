@@ -162,8 +162,9 @@ def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *,
     fluid, rig, sim_config, times = truth_sim.fluid, truth_sim.rig, truth_sim.sim_config, truth_sim.times
     rng = np.random.default_rng(seed)
     velocity = np.gradient(truth_sim.trajectory.poses(times)[0], times, axis=0)
-    start = math.ceil(times[0] * sensor.sample_rate - 1e-9) / sensor.sample_rate
-    t = sensor.sample_times(start, float(times[-1]))
+    # from the programme's start, as a real recording starts before the arm moves (the first samples, before the
+    # first mid-step force, read that force); a recording that began in motion would replay from rest
+    t = sensor.sample_times(float(truth_sim.trajectory.t[0]), float(times[-1]))
     reading = sensor.read(times, truth_sim.force, velocity, t, rng)
     xy = truth_sim.trajectory.poses(t)[0]
     density, density_truth = density_block(fluid.density, rig, sensor, rng)
