@@ -133,7 +133,8 @@ def translate(
     return Trajectory(t, xy, 0.0, 0.0)
 
 
-def stationary(duration: float, *, position: tuple[float, float] = (0.0, 0.0), sample_rate: float = 100.0) -> Trajectory:
+def stationary(duration: float, *, position: tuple[float, float] = (0.0, 0.0),
+               sample_rate: float = 100.0) -> Trajectory:
     """The rod held still at ``position`` [m] for ``duration`` [s]."""
     t = _times(duration, sample_rate)
     return Trajectory(t, np.broadcast_to(np.asarray(position, dtype=np.float64), (t.size, 2)), 0.0, 0.0)
