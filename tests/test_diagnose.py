@@ -14,8 +14,8 @@ import torch
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
 from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
 from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, scaled_law
-from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, NONE, REANCHORS, ScaleReadings, fit_physics,
-                                      fit_sensor, rank, reachable_rss)
+from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAINED, NONE, REANCHORS, ScaleReadings,
+                                      fit_physics, fit_sensor, rank, reachable_rss, second_budget)
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify import StirProblem, Windows
 from diffstir.identify.problem import rig_from_recording, trajectory_from_recording
@@ -174,6 +174,28 @@ def test_a_fit_cut_short_that_could_still_catch_up_makes_the_verdict_ambiguous()
     assert evidence["unconverged_contenders"]["thixotropy"] < DISTINCT
     settled = replace(stuck, converged=True, reachable_rss=none.rss)
     assert rank({**fits, "thixotropy": settled}, ctx.measured, NOISE)[1] == "sensor_lag"
+
+
+def test_a_best_fit_cut_short_that_explains_too_little_gets_a_second_budget():
+    """The best physics fit, unconverged, with the evidence (ΔBIC > EVIDENCE) but under EXPLAINED of the mismatch
+    explained: only the materiality rule stops it, and its budget may be why, so it is fitted further; converged,
+    short of the evidence, a sensor candidate (fitted to convergence), or where the residual is noise, it is not."""
+    ctx = synthetic_context("sensor_lag", lag_time=0.1)
+    none = fit_sensor(NONE, ctx)
+    slip = replace(none, name="wall_slip", kind="physics", size=2, converged=False)
+    evidence = {"best": "wall_slip", "gain_over_none": 2 * EVIDENCE, "explained": 0.8 * EXPLAINED,
+                "residual_test": {"needed": True}, "unconverged_contenders": {}}
+    fits = {"none": none, "wall_slip": slip}
+    assert second_budget(fits, "none", evidence) == ["wall_slip"]
+    assert second_budget({**fits, "wall_slip": replace(slip, converged=True)}, "none", evidence) == []
+    assert second_budget(fits, "none", {**evidence, "gain_over_none": 0.5 * EVIDENCE}) == []
+    assert second_budget(fits, "none", {**evidence, "residual_test": {"needed": False}}) == []
+    lag = replace(none, name="sensor_lag", converged=False)
+    assert second_budget({"none": none, "sensor_lag": lag}, "none", {**evidence, "best": "sensor_lag"}) == []
+    # named, uncontended: nothing to decide; contended: the contender and the best
+    assert second_budget(fits, "wall_slip", {**evidence, "explained": 1.0}) == []
+    contended = {**evidence, "explained": 1.0, "unconverged_contenders": {"thixotropy": 0.5 * DISTINCT}}
+    assert second_budget(fits, "ambiguous", contended) == ["thixotropy", "wall_slip"]
 
 
 def test_needs_diagnosis_tells_structure_from_noise():

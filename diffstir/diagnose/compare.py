@@ -28,6 +28,10 @@ Raftery (1995) scale of ΔBIC ≈ 2 ln(Bayes factor):
   short (``diagnose`` first gives such contenders a second budget);
 * otherwise the best candidate.
 
+A physics fit stopped by its budget gets a second one (``second_budget``) where that could change the verdict: the
+contenders above, the best with them, and the best alone when it has the evidence (ΔBIC > ``EVIDENCE``) and only
+the share it explains, which a fit cut short understates, keeps it from being named.
+
 The score of a candidate is BIC − BIC(none) (negative: the data favour the extension); its probability is the BIC
 weight exp(−BIC/2) / Σ exp(−BIC/2) over the candidates.
 """
@@ -297,6 +301,19 @@ def fit_candidates(names: list[str], ctx: Context, problem, *, max_iterations: i
             if on_fit is not None:
                 on_fit(fit)
     return {name: fits[name] for name in names}
+
+
+def second_budget(fits: dict[str, CandidateFit], verdict: str, evidence: dict) -> list[str]:
+    """The physics candidates whose fits, cut short by their budget, get a second one before the verdict is final
+    (``evidence`` and ``verdict`` as ``rank`` gives them): the contenders a further step could bring within
+    ``DISTINCT`` of the best, and the best when contended, or when it is unconverged with ΔBIC > ``EVIDENCE``
+    and explains less than ``EXPLAINED`` of the mismatch, the only rule that keeps it from being named."""
+    best = evidence["best"]
+    contenders = list(evidence["unconverged_contenders"]) if verdict != "none" else []
+    short = best in fits and not fits[best].converged and (best in PHYSICS_CANDIDATES or best == "yield_stress")
+    immaterial_only = (verdict == "none" and evidence["residual_test"]["needed"]
+                       and evidence["gain_over_none"] > EVIDENCE and evidence["explained"] < EXPLAINED)
+    return contenders + ([best] if short and (contenders or immaterial_only) else [])
 
 
 def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> tuple[list[dict], str, dict]:

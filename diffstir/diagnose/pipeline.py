@@ -25,7 +25,7 @@ from ..mpm import SimConfig
 from ..recording import Recording
 from .base import BaseFit, base_from_identification, law_from_report, noise_level, simulate_base
 from .candidates import CANDIDATES, Context, accel_reading, check_names
-from .compare import CandidateFit, fit_candidates, rank
+from .compare import CandidateFit, fit_candidates, rank, second_budget
 from .locate import locate
 
 #: Confidence words for the separation ΔBIC between the verdict and the runner-up (Kass and Raftery 1995).
@@ -171,9 +171,8 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
 
     fits = fit_candidates(names, ctx, problem, max_iterations=max_iterations, on_fit=report, workers=workers)
     ranking, verdict, evidence = rank(fits, problem.measured, noise)
-    contenders = list(evidence["unconverged_contenders"])
-    if verdict != "none" and contenders:  # a second budget for the fits that might still catch up, and the best
-        again = contenders + ([evidence["best"]] if not fits[evidence["best"]].converged else [])
+    again = second_budget(fits, verdict, evidence)
+    if again:
         fits.update(fit_candidates(again, ctx, problem, max_iterations=max_iterations, on_fit=report,
                                    workers=workers, resume=fits))
         ranking, verdict, evidence = rank(fits, problem.measured, noise)
