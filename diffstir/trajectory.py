@@ -147,13 +147,13 @@ def through_samples(t: np.ndarray, xy: np.ndarray, z: np.ndarray | float = 0.0, 
 
     Replaying the samples along chords makes the rod's velocity jump at every sample, in direction by U h / R on a
     circle of radius R at speed U sampled every h; the fluid's force follows the velocity, so a component read
-    along a fixed axis is off by up to that angle times the force (0.04 rad, 2 mN mean on the syrup case of
+    along a fixed axis is off by up to that angle times the force (0.04 rad, 2.9 mN mean on the syrup case of
     ``scripts/diagnosis_benchmark.py`` at 100 Hz: ``scripts/replay_gap.py``). For a smooth path the spline's
     velocity error is O(h³) instead; where the recorded path has a corner (a real arm's has none) it overshoots
     by a fraction of U h.
     """
     t = np.asarray(t, dtype=np.float64)
-    rate = max(rate, (t.size - 1) / max(t[-1] - t[0], 1e-12))
     dense = np.linspace(t[0], t[-1], max(t.size, int(math.ceil((t[-1] - t[0]) * rate)) + 1))
     z = np.broadcast_to(np.asarray(z, dtype=np.float64), t.shape)
-    return Trajectory(dense, CubicSpline(t, xy, axis=0)(dense), CubicSpline(t, z)(dense), 0.0)
+    path = CubicSpline(t, np.column_stack([xy, z]), axis=0)(dense)  # (x, y, z) [m] at the dense times
+    return Trajectory(dense, path[:, :2], path[:, 2], 0.0)

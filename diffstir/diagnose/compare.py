@@ -310,7 +310,7 @@ def second_budget(fits: dict[str, CandidateFit], verdict: str, evidence: dict) -
     and explains less than ``EXPLAINED`` of the mismatch, the only rule that keeps it from being named."""
     best = evidence["best"]
     contenders = list(evidence["unconverged_contenders"]) if verdict != "none" else []
-    short = best in fits and not fits[best].converged and (best in PHYSICS_CANDIDATES or best == "yield_stress")
+    short = fits[best].kind == "physics" and not fits[best].converged
     immaterial_only = (verdict == "none" and evidence["residual_test"]["needed"]
                        and evidence["gain_over_none"] > EVIDENCE and evidence["explained"] < EXPLAINED)
     return contenders + ([best] if short and (contenders or immaterial_only) else [])
