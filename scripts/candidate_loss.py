@@ -47,6 +47,8 @@ def main() -> None:
     parser.add_argument("--params", nargs="+", default=[], help="candidate parameters, name=value,... (none: the "
                         "linearised base reading's gap at --eta)")
     parser.add_argument("--identify-iterations", type=int, default=3, help="as the benchmark's")
+    parser.add_argument("--frozen", action="store_true", help="simulate every point at the sound speed a wall-slip "
+                        "fit holds fixed (the identified law's, StirProblem.frozen), not at each point's own")
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = coarse()
@@ -60,9 +62,10 @@ def main() -> None:
     ctx = Context(times=problem.times, measured=problem.measured, base_reading=base.predicted,
                   scale_column=base.scale_column, accel_reading=None, noise=0.0,
                   shear_rate=characteristic_shear_rate(problem), duration=problem.trajectory.duration,
-                  rebuild_time=1.0, law=base.law)
+                  rebuild_time=1.0, law=base.law, rod_radius=problem.rig.rod.radius)
     model = PhysicsModel(PHYSICS_CANDIDATES[args.candidate], base.law, ctx)
-    replay = CachedReplay(problem, model)  # simulates the model's material with its slip length, as the fits do
+    # simulates the model's material with its slip length, as the fits do
+    replay = CachedReplay(problem.frozen(base.law) if args.frozen else problem, model)
     print(f"{args.effect} concealed in {args.fluid} (truth {truth}), seed {args.seed}; identified η "
           f"{eta_identified:.4g} Pa·s, its loss {problem.loss(base.predicted):.5f} N")
     if not args.params:

@@ -13,9 +13,11 @@ import torch
 
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
 from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
-from diffstir.diagnose.candidates import SENSOR_CANDIDATES, Context, check_names, scaled_law
-from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAINED, NONE, REANCHORS, ScaleReadings,
-                                      fit_physics, fit_sensor, rank, reachable_rss, second_budget)
+from diffstir.diagnose.candidates import (PHYSICS_CANDIDATES, SENSOR_CANDIDATES, SLIP_STARTS, CachedReplay, Context,
+                                         PhysicsModel, check_names, scaled_law)
+from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAINED, NONE, REANCHORS,
+                                      SOUND_SPEED_TOLERANCE, ScaleReadings, fit_physics, fit_sensor, rank,
+                                      reachable_rss, refrozen, screened_start, second_budget)
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify import StirProblem, Windows
 from diffstir.identify.problem import rig_from_recording, trajectory_from_recording
@@ -48,7 +50,7 @@ def synthetic_context(effect=None, seed=0, **truth):
     column = p0.copy()  # a Newtonian reading is proportional to η: d p / d ln η = p
     ctx = Context(times=t, measured=np.zeros_like(t), base_reading=p0, scale_column=column,
                   accel_reading=accel_y, noise=NOISE, shear_rate=4.8, duration=float(t[-1]), rebuild_time=1.0,
-                  law=Newtonian(eta=1.0))
+                  law=Newtonian(eta=1.0), rod_radius=0.0125)
     true_reading = p0 * 1.1
     if effect is not None:
         true_reading = SENSOR_CANDIDATES[effect].reading(true_reading, ctx, truth)
@@ -198,6 +200,61 @@ def test_a_best_fit_cut_short_that_explains_too_little_gets_a_second_budget():
     assert second_budget(fits, "ambiguous", contended) == ["thixotropy", "wall_slip"]
 
 
+def test_the_screen_starts_a_physics_fit_on_the_valley_floor_nearest_the_truth():
+    """Slip and viscosity trade off: a drag s f(b) p with f falling in b. Each start is rescaled by the
+    least-squares factor, so one whose shape fits wins even if its scale is far off; where every start has the
+    same shape, the rescale alone recovers s, and a scale beyond its bound is clipped to it."""
+    t = np.linspace(0.0, 2.0, 200)
+    shape = np.sin(3 * t) + 0.3 * np.sign(np.sin(3 * t))
+
+    def reading(theta):  # a stiffer shape and less force as b grows: the valley s ∝ 1 / f(b)
+        s, b = math.exp(theta[0]), math.exp(theta[1])
+        return s / (1 + b / 0.002) * (shape + 50 * b * t)
+
+    measured = reading(np.log([1.3, 0.002])) + np.random.default_rng(0).normal(0.0, 1e-3, t.size)
+    starts = [np.log([1.0, b]) for b in (0.0004, 0.0012, 0.004)]
+    best = screened_start(reading, starts, measured, math.log(0.05), math.log(20.0))
+    assert best[1] == pytest.approx(math.log(0.0012))  # the start whose shape is nearest the truth's
+    # rescaled onto the valley floor: the force of the truth at that b
+    assert math.exp(best[0]) == pytest.approx(1.3 * (1 + 0.0012 / 0.002) / 2, rel=0.05)
+    same = screened_start(reading, [np.log([1.0, 0.002])], measured, math.log(0.05), math.log(20.0))
+    assert math.exp(same[0]) == pytest.approx(1.3, rel=1e-3)  # noise 1e-3 on a reading of order 1
+    assert screened_start(reading, starts[:1], 100 * measured, math.log(0.05), math.log(20.0))[0] == math.log(20.0)
+
+
+def test_a_physics_fit_goes_on_at_the_sound_speed_of_where_it_moved():
+    """The simulator raises its sound speed as √η in a viscous stir (``SimConfig.compressibility``): a fit that
+    moves the viscosity scale s by more than twice ``SOUND_SPEED_TOLERANCE`` gets a replay frozen at its new c, one
+    that moves less keeps its replay (and its cache)."""
+    traj = programme()
+    blank = Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
+                      rod=RodGeometry(radius=0.0125, immersion_depth=0.08),
+                      sensor=SensorSpec(mode="component", axis=(0.0, 1.0), sample_rate=RATE), density=None,
+                      t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=np.zeros(traj.t.size), name="blank")
+    # a floor of 0.5 m/s under the viscous c of 0.8 Pa s at 0.06 m/s, 1.45 m/s
+    problem = StirProblem(blank, replace(FAST, sound_speed=0.5, compressibility=0.03), 1000.0,
+                          Windows.of(blank, None, 0.0))
+    zeros = np.zeros(traj.t.size)
+    ctx = Context(times=traj.t, measured=zeros, base_reading=zeros, scale_column=zeros, accel_reading=None,
+                  noise=NOISE, shear_rate=4.8, duration=float(traj.t[-1]), rebuild_time=1.0,
+                  law=Newtonian(eta=0.8), rod_radius=0.0125)
+    model = PhysicsModel(PHYSICS_CANDIDATES["wall_slip"], ctx.law, ctx)
+    replay = CachedReplay(problem.frozen(model.material), model)
+    replay.simulations = 4
+    c0 = replay.problem.config.sound_speed
+    assert c0 > 1.0 and replay.problem.config.compressibility is None
+    near = model.theta()
+    near[0] = math.log(1 + SOUND_SPEED_TOLERANCE)  # c up by half the tolerance
+    model.set_theta(near)
+    assert refrozen(replay, problem, model) is replay
+    far = near.copy()
+    far[0] = math.log(1.1)
+    model.set_theta(far)
+    fresh = refrozen(replay, problem, model)
+    assert fresh is not replay and fresh.simulations == 4 and fresh.cache == {}
+    assert fresh.problem.config.sound_speed == pytest.approx(c0 * math.sqrt(1.1), rel=1e-5)
+
+
 def test_needs_diagnosis_tells_structure_from_noise():
     rng = np.random.default_rng(1)
     t = np.arange(300) / RATE
@@ -294,10 +351,12 @@ def test_a_resumed_physics_fit_goes_on_from_where_it_stopped():
     base = simulate_base(problem, Newtonian(eta=0.96), 1000.0, "test")
     ctx = Context(times=problem.times, measured=problem.measured, base_reading=base.predicted,
                   scale_column=base.scale_column, accel_reading=None, noise=NOISE, shear_rate=4.8,
-                  duration=problem.trajectory.duration, rebuild_time=1.0, law=base.law)
+                  duration=problem.trajectory.duration, rebuild_time=1.0, law=base.law,
+                  rod_radius=problem.rig.rod.radius)
     first = fit_physics("wall_slip", ctx, problem, max_iterations=1)
     assert not first.converged and first.reachable_rss <= first.rss
-    assert first.simulations == 3  # the forward-difference Jacobian of (s, b): the start and one step each
+    # the screen of the slip starts, then the forward-difference Jacobian of (s, b): the start and one step each
+    assert first.simulations == len(SLIP_STARTS) + 3
     more = fit_physics("wall_slip", ctx, problem, max_iterations=2, resume=first)
     assert first.simulations < more.simulations <= first.simulations + 2
     assert more.params != first.params and more.seconds > first.seconds

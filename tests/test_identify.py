@@ -410,14 +410,20 @@ def test_report_files(newtonian_identification):
     assert any((out / "tb").iterdir())
 
 
-def test_fit_app_writes_a_report(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def period_recordings():
+    """Two Newtonian recordings (TRUE_ETA and 1 Pa s) of 1.7 s: loading checks that a recording spans at least one
+    stirring period; the apps fit only their first 0.3 s."""
+    return [synthetic_recording(Newtonian(eta=eta), duration=1.7, seed=k) for k, eta in enumerate((TRUE_ETA, 1.0))]
+
+
+def test_fit_app_writes_a_report(period_recordings, tmp_path, monkeypatch):
     import sys
 
     from diffstir.apps.fit import main
     from diffstir.recording import save_recording
 
-    # loading checks that a recording spans at least one stirring period; fit only its first 0.3 s
-    path = save_recording(synthetic_recording(Newtonian(eta=TRUE_ETA), duration=1.7), tmp_path / "rec")
+    path = save_recording(period_recordings[0], tmp_path / "rec")
     out = tmp_path / "out"
     monkeypatch.setattr(sys, "argv", ["diffstir-fit", f"recording={path}", f"out={out}", "model=[newtonian]",
                                       "baseline=false", "density=1000", "~coarse", "sim.dx=0.01",
@@ -439,15 +445,14 @@ def test_fit_app_writes_a_report(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])
-def test_fit_sweeps_recordings_with_hydra_multirun(tmp_path, launcher):
+def test_fit_sweeps_recordings_with_hydra_multirun(period_recordings, tmp_path, launcher):
     # the documented local sweep: one job, and one output directory with its report, per recording
     import subprocess
     import sys
 
     from diffstir.recording import save_recording
 
-    paths = [save_recording(synthetic_recording(Newtonian(eta=eta), duration=1.7, seed=k), tmp_path / f"rec{k}")
-             for k, eta in enumerate((0.5, 1.0))]
+    paths = [save_recording(rec, tmp_path / f"rec{k}") for k, rec in enumerate(period_recordings)]
     sweep = tmp_path / "sweep"
     command = [sys.executable, "-m", "diffstir.fit", "-m", f"recording={paths[0]},{paths[1]}",
                f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}", "model=[newtonian]", "baseline=false",

@@ -54,6 +54,12 @@ KAPPA_SENSITIVITY = 0.5
 #: The yield-stress candidate's regularisation rate γ̇_c as a fraction of U/a [1].
 YIELD_REGULARISATION = 0.1
 
+#: The wall-slip candidate's starting slip lengths b as fractions of the rod's radius a [1], from a weak to a strong
+#: slip, a factor 2 apart. Slip and the viscosity scale trade off along a valley of (s, b) whose floor the
+#: Gauss-Newton steps barely follow (castor oil's 2 mm slip fitted at 1.15 mm from a single 1 mm start,
+#: docs/diagnosis.md), so the fit starts from the best of them (``compare.screened_start``).
+SLIP_STARTS = (0.025, 0.05, 0.1, 0.2, 0.4)
+
 #: Laws that already have a yield stress.
 YIELD_LAWS = ("bingham", "herschel_bulkley")
 
@@ -95,6 +101,7 @@ class Context:
         duration: the compared span [s].
         rebuild_time: the thixotropy candidate's starting rebuild time t_r [s].
         law: the base law.
+        rod_radius: the rod's radius a [m].
     """
 
     times: np.ndarray
@@ -107,6 +114,7 @@ class Context:
     duration: float
     rebuild_time: float
     law: RheologyLaw
+    rod_radius: float
 
     @property
     def signal(self) -> float:
@@ -140,12 +148,13 @@ class SensorCandidate:
 
 @dataclass(frozen=True)
 class PhysicsCandidate:
-    """An extension of the simulated fluid or rig: ``start(law, ctx)`` gives starting values (SI, by name) and
-    ``material(law, values, ctx)`` the simulator material and the rod's slip length [m]."""
+    """An extension of the simulated fluid or rig: ``starts(law, ctx)`` gives starting values (SI, by name; the
+    fit screens them when there are several, ``compare.screened_start``) and ``material(law, values, ctx)`` the
+    simulator material and the rod's slip length [m]."""
 
     name: str
     params: tuple[Param, ...]
-    start: Callable[[RheologyLaw, Context], dict]
+    starts: Callable[[RheologyLaw, Context], list[dict]]
     material: Callable[[RheologyLaw, dict, Context], tuple[nn.Module, float]]
     summary: str
 
@@ -211,28 +220,28 @@ PHYSICS_CANDIDATES = {
     "thixotropy": PhysicsCandidate(
         "thixotropy", (SCALE, Param("alpha", "1", "log", 1e-2, 1e2), Param("breakdown", "1", "log", 1e-3, 10.0),
                        Param("rebuild_time", "s", "log", 0.05, 100.0)),
-        lambda law, ctx: {"viscosity_scale": 1.0 / 1.25, "alpha": 0.5, "breakdown": 0.1,
-                          "rebuild_time": ctx.rebuild_time},
+        lambda law, ctx: [{"viscosity_scale": 1.0 / 1.25, "alpha": 0.5, "breakdown": 0.1,
+                           "rebuild_time": ctx.rebuild_time}],
         _scaled(lambda law, v, ctx: HiddenPhysics(
             law, thixotropy=Thixotropy(v["alpha"], v["breakdown"], v["rebuild_time"]), horizon=ctx.duration)),
         "thixotropy (viscosity that falls under shear and recovers at rest)"),
     "viscoelasticity": PhysicsCandidate(
         "viscoelasticity", (SCALE, Param("relaxation_time", "s", "log", 1e-3, 5.0),
                             Param("polymer_fraction", "1", "linear", 0.02, 0.98)),
-        lambda law, ctx: {"viscosity_scale": 1.0, "relaxation_time": 0.05, "polymer_fraction": 0.3},
+        lambda law, ctx: [{"viscosity_scale": 1.0, "relaxation_time": 0.05, "polymer_fraction": 0.3}],
         _scaled(lambda law, v, ctx: HiddenPhysics(
             law, viscoelasticity=Viscoelasticity(v["relaxation_time"], v["polymer_fraction"]), horizon=ctx.duration)),
         "viscoelasticity (stress that relaxes with a time constant)"),
     "temperature_drift": PhysicsCandidate(
         "temperature_drift", (SCALE, Param("viscosity_drift_rate", "1/s", "linear", -0.5, 0.5)),
-        lambda law, ctx: {"viscosity_scale": 1.0, "viscosity_drift_rate": 0.0},
+        lambda law, ctx: [{"viscosity_scale": 1.0, "viscosity_drift_rate": 0.0}],
         _scaled(lambda law, v, ctx: HiddenPhysics(
             law, temperature=TemperatureDrift(v["viscosity_drift_rate"] / KAPPA_SENSITIVITY, KAPPA_SENSITIVITY),
             horizon=ctx.duration)),
         "a viscosity drifting in time (temperature)"),
     "wall_slip": PhysicsCandidate(
         "wall_slip", (SCALE, Param("slip_length", "m", "log", 1e-5, 0.02)),
-        lambda law, ctx: {"viscosity_scale": 1.0, "slip_length": 1e-3},
+        lambda law, ctx: [{"viscosity_scale": 1.0, "slip_length": f * ctx.rod_radius} for f in SLIP_STARTS],
         lambda law, v, ctx: (scaled_law(law, v["viscosity_scale"]), v["slip_length"]),
         "wall slip (the fluid slides along the rod)"),
 }
@@ -288,7 +297,7 @@ class PhysicsModel(Parametrisation):
     def __init__(self, candidate: PhysicsCandidate, law: RheologyLaw, ctx: Context):
         super().__init__(candidate.params)
         self.name, self.candidate, self.law, self.ctx = candidate.name, candidate, law, ctx
-        self.set_theta(self.theta_of(candidate.start(law, ctx)))
+        self.set_theta(self.theta_of(candidate.starts(law, ctx)[0]))
 
     def theta(self) -> np.ndarray:
         return self._theta.copy()

@@ -159,7 +159,8 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
                   scale_column=base.scale_column,
                   accel_reading=accel_reading(problem.times, problem.velocity, recording.sensor), noise=noise,
                   shear_rate=characteristic_shear_rate(problem), duration=problem.trajectory.duration,
-                  rebuild_time=float(rebuild_time), law=base.law)
+                  rebuild_time=float(rebuild_time), law=base.law,
+                  rod_radius=problem.rig.rod.radius)
     xy = np.stack([recording.x[problem.index], recording.y[problem.index]], axis=-1)
     location = locate(problem.times, xy, problem.velocity, problem.measured, base.predicted, noise,
                       problem.rig.rod.radius)
