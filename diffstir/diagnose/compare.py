@@ -5,9 +5,11 @@ p(ln s) (``ScaleReadings``): linearised, p0 + (d p/d ln s) ln s, while |ln s| st
 re-anchored on a simulation of the law at the fitted scale when the fit leaves it: an effect that biased the
 identification, such as a dead band that took a quarter off the viscosity, is then fitted on the simulator's
 reading, not on a linearisation 5 mN (1.7 noise levels) off it (docs/diagnosis.md); physics candidates
-start from the base law with the extension at a typical strength, take a forward-difference Jacobian (k + 1
-simulations) and a few trust-region Gauss-Newton steps with Broyden updates (``diffstir.identify.fit_model``, soft-L1
-cost at the starting residuals' scale, as the identification). Each fit gets the Laplace covariance of its
+start from the base law with the extension at a typical strength (the best of several where the candidate offers
+several, ``screened_start``), take a forward-difference Jacobian (k + 1 simulations) and a few trust-region
+Gauss-Newton steps with Broyden updates (``diffstir.identify.fit_model``, soft-L1 cost at the starting residuals'
+scale, as the identification), and as many again at the simulator's sound speed of where they moved when it
+changed (``refrozen``). Each fit gets the Laplace covariance of its
 parameters with the effective sample size (``diffstir.identify.uncertainty``).
 
 Comparison by BIC with one effective sample size N_eff for all candidates (that of the candidate with the smallest
@@ -275,8 +277,8 @@ def refrozen(replay: CachedReplay, problem, model) -> CachedReplay:
     """``replay``, or a new one frozen at the sound speed of ``model``'s current material where that differs from
     ``replay``'s by more than ``SOUND_SPEED_TOLERANCE`` (``StirProblem.frozen``): the simulator raises c with the
     viscosity (c ∝ √η when viscous), and a reading simulated at another viscosity's c is off by a structured
-    residual (castor oil's concealed slip at its truth: 2.54 mN at its own c, 3.11 mN at the c of the identified
-    viscosity, 13 % lower; docs/diagnosis.md)."""
+    residual (castor oil's concealed slip at its truth: 2.54 mN of loss at its own c, 3.11 mN at the c of the
+    identified viscosity, 13 % lower, so c 7 % lower; docs/diagnosis.md)."""
     frozen = problem.frozen(model.material)
     if abs(frozen.config.sound_speed / replay.problem.config.sound_speed - 1.0) <= SOUND_SPEED_TOLERANCE:
         return replay
