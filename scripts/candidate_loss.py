@@ -8,8 +8,10 @@ its Newtonian law identified the same way; then the physics candidate is simulat
     python scripts/candidate_loss.py --fluid castor_oil --effect thixotropy --candidate thixotropy --eta 0.65 \\
         --params alpha=1,breakdown=0.3,rebuild_time=2 alpha=1,breakdown=0.3,rebuild_time=1
 
-Without ``--params`` it prints how far the sensor candidates' linearised base reading p0 + (d p/d ln s) ln s is
-from the law simulated at ``--eta`` (``diffstir.diagnose.compare.ScaleReadings``):
+``--frozen`` simulates every point at the identified law's sound speed instead of its own (what a physics fit
+held before ``diffstir.diagnose.compare.refrozen``). Without ``--params`` it prints how far the sensor candidates'
+linearised base reading p0 + (d p/d ln s) ln s is from the law simulated at ``--eta``
+(``diffstir.diagnose.compare.ScaleReadings``):
 
     python scripts/candidate_loss.py --fluid castor_oil --effect sensor_deadband --eta 0.6
 """
@@ -47,8 +49,8 @@ def main() -> None:
     parser.add_argument("--params", nargs="+", default=[], help="candidate parameters, name=value,... (none: the "
                         "linearised base reading's gap at --eta)")
     parser.add_argument("--identify-iterations", type=int, default=3, help="as the benchmark's")
-    parser.add_argument("--frozen", action="store_true", help="simulate every point at the sound speed a wall-slip "
-                        "fit holds fixed (the identified law's, StirProblem.frozen), not at each point's own")
+    parser.add_argument("--frozen", action="store_true", help="simulate every point at the identified law's sound "
+                        "speed (StirProblem.frozen), as a fit that starts there holds it, not at each point's own")
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = coarse()
