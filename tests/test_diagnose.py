@@ -227,10 +227,7 @@ def test_a_physics_fit_goes_on_at_the_sound_speed_of_where_it_moved():
     moves the viscosity scale s by more than twice ``SOUND_SPEED_TOLERANCE`` gets a replay frozen at its new c, one
     that moves less keeps its replay (and its cache)."""
     traj = programme()
-    blank = Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
-                      rod=RodGeometry(radius=0.0125, immersion_depth=0.08),
-                      sensor=SensorSpec(mode="component", axis=(0.0, 1.0), sample_rate=RATE), density=None,
-                      t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=np.zeros(traj.t.size), name="blank")
+    blank = rig_recording(traj, name="blank")
     # a floor of 0.5 m/s under the viscous c of 0.8 Pa s at 0.06 m/s, 1.45 m/s
     problem = StirProblem(blank, replace(FAST, sound_speed=0.5, compressibility=0.03), 1000.0,
                           Windows.of(blank, None, 0.0))
@@ -299,22 +296,27 @@ def test_base_reuses_the_identification_readings_on_the_same_samples():
     np.testing.assert_array_equal(base.scale_column, jacobian[:, 0])  # η is the Newtonian law's stress scale
 
 
+def rig_recording(traj, force=None, name="lagged"):
+    """A recording of the rig's rod following ``traj``, read along y; ``force`` [N] (None: zeros)."""
+    return Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
+                     rod=RodGeometry(radius=0.0125, immersion_depth=0.08),
+                     sensor=SensorSpec(mode="component", axis=(0.0, 1.0), resolution=0.001, sample_rate=RATE),
+                     density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
+                     force=np.zeros(traj.t.size) if force is None else force, name=name)
+
+
 def lagged_recording(tau, eta=0.8, seed=0, durations=(0.4, 0.2, 0.4)):
     """A recording of a Newtonian fluid made with the fitting simulator, read through a first-order lag."""
     traj = programme(durations=durations)
-    cup, rod = CupGeometry(radius=0.0425, fill_height=0.13), RodGeometry(radius=0.0125, immersion_depth=0.08)
-    sensor = SensorSpec(mode="component", axis=(0.0, 1.0), resolution=0.001, sample_rate=RATE)
-    blank = Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
-                      force=np.zeros(traj.t.size), name="lagged")
+    blank = rig_recording(traj)
     with torch.no_grad():  # the path the fitter replays: the spline through the recorded poses
         result = StirringSimulator(Newtonian(eta=eta), rig_from_recording(blank), FAST, density=1000.0)(
             trajectory_from_recording(blank))
-    t, f = result.times.double().numpy(), result.force.double().numpy() * rod.immersion_depth
+    t, f = result.times.double().numpy(), result.force.double().numpy() * blank.rod.immersion_depth
     force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
-    reading = first_order_lag(sensor_reading_np(force, blank.velocity(), sensor), 1 / RATE, tau)
+    reading = first_order_lag(sensor_reading_np(force, blank.velocity(), blank.sensor), 1 / RATE, tau)
     reading += np.random.default_rng(seed).normal(0.0, NOISE, reading.shape)
-    return Recording(cup=cup, rod=rod, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
-                     force=reading, name="lagged")
+    return rig_recording(traj, reading)
 
 
 def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
