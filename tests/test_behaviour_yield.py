@@ -9,9 +9,12 @@ import pytest
 import torch
 
 from diffstir.behaviour import characterise, write_behaviour_report
+from diffstir.behaviour.joint import PASTE_SHARES, JointProblem, screened_pastes
+from diffstir.behaviour.windows import speed_windows
 from diffstir.identify import StirProblem
+from diffstir.parallel import Workers
 from diffstir.recording import Recording
-from diffstir.rheology import make_law
+from diffstir.rheology import FlowCurve, make_law
 from test_behaviour import FAST, programme_recording
 
 DENSITY = 1000.0  # kg/m³
@@ -51,3 +54,18 @@ def test_joint_fit_tells_a_yield_stress_from_a_power_law(law, label, tmp_path):
     stated = json.loads(paths["json"].read_text())["behaviour"]
     assert stated["class"] == label and stated["yield_test"]["joint"]["weight"] == pytest.approx(c.joint.weight)
     assert "yield stress by the joint fit" in paths["md"].read_text()
+
+
+def test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress():
+    # a Bingham plastic whose yield stress carries 94-98 % of the stress over the programme's shear rates (U/a,
+    # 3.2-13 1/s): of the paste starts on its own flow curve, the nearly plastic one (90 %) reads closer to it than
+    # the half-yield one, whose flow part must then rise steeply with the rate to reach the fast speed's stress
+    law = {"name": "bingham", "params": {"tau_y": 2.0, "eta_p": 0.01}}
+    recording = model_readings(programme_recording(), law, noise=0.001, seed=3)
+    windows = speed_windows(recording)
+    rate = np.array([w.speed / recording.rod.radius for w in windows])
+    curve = FlowCurve(rate, 2.0 + 0.01 * rate)
+    with Workers(1, report=lambda event: None) as pool:
+        start = screened_pastes(pool, JointProblem(windows, FAST, DENSITY), ["bingham"], curve)["bingham"]
+    assert max(PASTE_SHARES) == pytest.approx(0.9)
+    assert start.params_si()["tau_y"] == pytest.approx(0.9 * curve.stress.min(), rel=1e-4)

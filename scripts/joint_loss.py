@@ -1,0 +1,92 @@
+"""The loss a law reaches on every speed at once, at parameters you choose, on a fluid of the behaviour benchmark
+(docs/accuracy.md, Behaviour classification): how well a law *could* fit the joint problem, apart from how far the
+joint fit got.
+
+The fluid is stirred by the lab along the benchmark's programme as ``behaviour_benchmark.py`` stirs it (same
+truth grid, sensor preset and noise seed); every constant-speed window goes into one ``JointProblem`` on
+``--fit-sim``, and each ``--law`` is simulated once, at its own sound speed (``SimConfig.compressibility``).
+``--save`` writes the lab recording, ``--recording`` reads it back instead of simulating the truth again.
+
+    python scripts/joint_loss.py --fluid bingham --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \\
+        --truth-dx 0.004 --law bingham:tau_y=3,eta_p=0.1 power_law:k=2.73,n=0.12
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+
+import numpy as np
+import torch
+import yaml
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from behaviour_benchmark import FLUIDS, RADIUS, ROOT, SEGMENT, SPEEDS
+from diffstir.behaviour.joint import JointProblem
+from diffstir.behaviour.pipeline import combined_density
+from diffstir.behaviour.windows import speed_windows
+from diffstir.identify import FitModel
+from diffstir.identify.optimise import Readings
+from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
+from diffstir.recording import load_recording, save_recording
+
+
+def parse_law(text: str) -> FitModel:
+    """``name:k=v,k=v`` → the law ``name`` at those SI parameters."""
+    name, _, rest = text.partition(":")
+    pairs = [item.split("=") for item in rest.split(",") if item]
+    if any(len(pair) != 2 for pair in pairs):
+        raise SystemExit(f"--law {text!r}: expected name:param=value,param=value")
+    return FitModel.named(name, **{key: float(value) for key, value in pairs})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--fluid", default="bingham", choices=list(FLUIDS))
+    parser.add_argument("--fit-sim", default="sim/slice2d.yaml", help="fitting grid, a file under conf/")
+    parser.add_argument("--truth-sim", default="lab/sim/truth2d.yaml", help="truth grid, a file under conf/")
+    parser.add_argument("--truth-dx", type=float, default=None, help="truth cell size [m] (default: the file's)")
+    parser.add_argument("--seed", type=int, default=0, help="as the benchmark's; the fluid's place is added")
+    parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
+    parser.add_argument("--law", nargs="+", required=True, help="laws to simulate, name:param=value,...")
+    parser.add_argument("--recording", default=None, help="read the lab recording from this directory")
+    parser.add_argument("--save", default=None, help="write the lab recording to this directory")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    models = [parse_law(text) for text in args.law]
+    fit_config = instantiate(OmegaConf.load(ROOT / "conf" / args.fit_sim))
+    if args.recording is not None:
+        recording = load_recording(args.recording)
+    else:
+        truth_config = instantiate(OmegaConf.load(ROOT / "conf" / args.truth_sim))
+        if args.truth_dx is not None:
+            truth_config = replace(truth_config, dx=args.truth_dx)
+        sensor = SensorModel(**yaml.safe_load((ROOT / "conf" / "lab" / "sensor" / f"{args.sensor}.yaml").read_text()))
+        _, law, density = FLUIDS[args.fluid]
+        trajectory = stirring_programme([{"speed": s, "duration": SEGMENT} for s in SPEEDS], radius=RADIUS,
+                                        ramp_time=0.2)
+        t0 = time.perf_counter()
+        recording = synthesise(Fluid(name=args.fluid, density=density, law=law), trajectory, sim_config=truth_config,
+                               sensor=sensor, seed=args.seed + list(FLUIDS).index(args.fluid),
+                               name=args.fluid).recording
+        print(f"lab recording: {time.perf_counter() - t0:.0f} s")
+        if args.save is not None:
+            save_recording(recording, args.save, overwrite=True)
+    problem = JointProblem(speed_windows(recording), fit_config, combined_density([recording], None)["value"])
+    print(f"{args.fluid} ({FLUIDS[args.fluid][1]}), fitted on {args.fit_sim}; {problem.measured.size} samples in "
+          f"the windows, mean |reading| {np.mean(np.abs(problem.measured)):.5f} N\n")
+    print("| law | parameters (SI) | loss [N] | rms residual [N] | s |")
+    print("|---|---|---|---|---|")
+    for model in models:
+        t0 = time.perf_counter()
+        reading = Readings(problem, model)(model.theta())
+        rest = reading - problem.measured
+        params = ", ".join(f"{k} {v:.4g}" for k, v in model.params_si().items())
+        print(f"| {model.name} | {params} | {problem.loss(reading):.5f} | {np.sqrt(np.mean(rest**2)):.5f} | "
+              f"{time.perf_counter() - t0:.0f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
