@@ -2,8 +2,8 @@
 
 Each case is a lab recording (coarse 2-D slice, the paper's rig) of a Newtonian base fluid stirred forwards
 (0.06 m/s), held, and stirred backwards at half the speed, read by a component sensor with white noise and
-quantisation, plus one effect the fitter is not told about (or none: a clean recording). The Newtonian law is identified (``identify``, coarse, whole
-recording) and the recording diagnosed (``diagnose``). Printed and written to ``--out``: the confusion matrix of
+quantisation, plus one effect the fitter is not told about (or none: a clean recording). The Newtonian law is
+identified (``identify``, coarse, whole recording) and the recording diagnosed (``diagnose``). Printed and written to ``--out``: the confusion matrix of
 the named effect against the concealed one, the false-alarm rate on clean recordings, the share named right at
 moderate strength, and the median reduction of the loss where an effect was present.
 
@@ -14,8 +14,8 @@ moderate strength, and the median reduction of the loss where an effect was pres
 Strengths ("moderate"; "weak" is half, "strong" twice): sensor lag τ = 0.1 s; dead band 25 % of the clean
 reading's rms; offset drift reaching 30 % of that rms over the recording; a moving mass whose force m a has 30 %
 of that rms; thixotropy α = 1 (k = 0.3, t_r = 2 s); viscoelasticity θ = 0.1 s (β = 0.5); a 2 mm slip length;
-a viscosity falling by 1 − e^(−0.3) = 26 % over the recording (b = 0.5 1/K, r = 0.32 K/s); a Bingham yield stress of half
-the Newtonian stress at U/a.
+a viscosity falling by 1 − e^(−0.3) = 26 % over the recording (b = 0.5 1/K, r = 0.32 K/s); a Bingham yield stress
+of half the Newtonian stress at U/a.
 """
 
 from __future__ import annotations

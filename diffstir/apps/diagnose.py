@@ -1,7 +1,8 @@
 """diffstir-diagnose: locate where a recording and its fitted simulation disagree, name the missing physics, model
 it, and show the fit improve (diagnosis.json, diagnosis.md, plots).
 
-    diffstir-diagnose recording=diffstir/data/examples/carreau_example identification=outputs/carreau out=outputs/diagnosis
+    diffstir-diagnose recording=diffstir/data/examples/carreau_example identification=outputs/carreau \\
+        out=outputs/diagnosis
 """
 
 from __future__ import annotations

@@ -1,21 +1,22 @@
 """One law fitted to every speed at once: the readings of all windows compared with one simulated fluid.
 
 A single speed probes a narrow band of shear rates, so Carreau's and Cross's λ and η_∞ stay unidentifiable
-(docs/identification.md); the windows of several speeds together span the band where the law bends. Each law
-starts from its fit to the per-speed apparent viscosities (``rheology.fit_flow_curve`` on (γ̇_i, η_i γ̇_i) with
-weights 1/σ_i²; with no more points than parameters, from ``identify.initial.initial_model``) and takes a few
-Gauss-Newton steps through the simulator (``identify.fit_model``) on the readings of all windows. A law with a
-yield stress also starts as a paste (``paste_start``: a share ``PASTE_SHARES`` of the lowest speed's stress is yield
-stress, each share simulated once and the one of least loss fitted), and the start with the lower loss is kept, as
-``identify`` does: the per-speed points of a yield-stress fluid barely bend (``classify``), so their flow curve
-starts the yield stress near zero, where its logarithmic parameter hardly moves the readings. The paste's stresses are those of the best joint fit without a yield stress, once it is done,
-else the points': the points are Newtonian equivalents, which put a paste's stress at the fastest speed too high.
-A law with a yield stress also starts from that best liquid fit itself, with a yield stress of ``TRACE_YIELD_SHARE``
-of its lowest stress (``LIQUID_START_ITERATIONS`` steps): a law that contains the liquid law then ends no worse than
-it, so that BIC, not the optimiser, decides whether the yield stress is worth its parameter (on glycerol the
-Herschel-Bulkley fit from the other two starts ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md).
-Each law's best start then takes ``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Uncertainty and selection
-are those of ``identify``: the Laplace covariance with N_eff, BIC with the best fit's N_eff.
+(docs/identification.md); the windows of several speeds together span the band where the law bends. Each law starts
+from its fit to the per-speed apparent viscosities (``rheology.fit_flow_curve`` on (γ̇_i, η_i γ̇_i) with weights
+1/σ_i²; with no more points than parameters, from ``identify.initial.initial_model``) and takes a few Gauss-Newton
+steps through the simulator (``identify.fit_model``) on the readings of all windows. A law with a yield stress also
+starts as a paste (``paste_start``: a share ``PASTE_SHARES`` of the lowest speed's stress is yield stress, each
+share simulated once and the one of least loss fitted), and the start with the lower loss is kept, as ``identify``
+does: the per-speed points of a yield-stress fluid barely bend (``classify``), so their flow curve starts the yield
+stress near zero, where its logarithmic parameter hardly moves the readings. The paste's stresses are those of the
+best joint fit without a yield stress, once it is done, else the points': the points are Newtonian equivalents,
+which put a paste's stress at the fastest speed too high. A law with a yield stress also starts from that best
+liquid fit itself, with a yield stress of ``TRACE_YIELD_SHARE`` of its lowest stress (``LIQUID_START_ITERATIONS``
+steps): a law that contains the liquid law then ends no worse than it, so that BIC, not the optimiser, decides
+whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkley fit from the other two starts
+ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's best start then takes
+``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Uncertainty and selection are those of ``identify``: the
+Laplace covariance with N_eff, BIC with the best fit's N_eff.
 """
 
 from __future__ import annotations

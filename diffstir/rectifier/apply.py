@@ -40,8 +40,10 @@ def refine(rectifier: Rectifier, metadata: dict, preliminary: dict, density: flo
     used = {**FORMER_NUMERICS, **preliminary["estimator"]}
     mismatched = [k for k in NUMERICS if trained.get(k) != used.get(k)]
     if mismatched:
-        out["note"] = (f"not refined: the preliminary estimate was made with {', '.join(f'{k}={used.get(k)}' for k in mismatched)}, "
-                       f"the rectifier was trained on {', '.join(f'{k}={trained.get(k)}' for k in mismatched)}")
+        made = ", ".join(f"{k}={used.get(k)}" for k in mismatched)
+        taught = ", ".join(f"{k}={trained.get(k)}" for k in mismatched)
+        out["note"] = (f"not refined: the preliminary estimate was made with {made}, the rectifier was trained on "
+                       f"{taught}")
         return out
     if not preliminary["resolves"]:
         out["note"] = "not refined: the force does not resolve viscosity (not identifiable from this recording)"
