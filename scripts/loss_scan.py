@@ -6,6 +6,10 @@ seed (the seed there is ``--seed`` + the viscosity's index in its list: 3 for 0.
 defaults). Each viscosity costs one forward simulation on ``--sim``.
 
     python scripts/loss_scan.py --eta-true 10 --seed 6 --sim sim/slice2d.yaml --etas 10 10.5 11.3 12.5
+
+``--frozen-at`` simulates each viscosity with the sound speed of another (``StirProblem.frozen``), as a fit holds
+the sound speed of its start (``identify.fit_model``): ``--etas 1 1 1 --frozen-at 0.8 1 1.25`` reads 1 Pa·s at
+the sound speeds of 0.8, 1 and 1.25 Pa·s, the size of the bias a start that far off leaves in the reading.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ def main() -> None:
     parser.add_argument("--sim", default="sim/slice2d.yaml", help="fitting resolution, a file under conf/")
     parser.add_argument("--etas", type=float, nargs="+", required=True, help="viscosities to simulate [Pa s]")
     parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
+    parser.add_argument("--frozen-at", type=float, nargs="+", default=None, help="simulate each of --etas at the "
+                        "sound speed of this viscosity [Pa s] (one per viscosity; default: its own)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     trajectory = stirring_programme(NEWTONIAN_PROGRAMME, radius=RADIUS, ramp_time=RAMP)
@@ -41,14 +47,17 @@ def main() -> None:
                           Windows.of(recording, None, 0.25))
     print(f"truth {args.eta_true:g} Pa s, seed {args.seed}, fitted on {args.sim}; "
           f"measured mean |reading| {problem.mean_reading():.5f} N\n")
-    print("| η [Pa·s] | mean \\|reading\\| [N] | loss [N] | s |")
-    print("|---|---|---|---|")
-    for eta in args.etas:
+    frozen_at = args.frozen_at or args.etas
+    if len(frozen_at) != len(args.etas):
+        raise SystemExit(f"--frozen-at gives {len(frozen_at)} viscosities for {len(args.etas)} in --etas")
+    print("| η [Pa·s] | sound speed of η [Pa·s] | c [m/s] | mean \\|reading\\| [N] | loss [N] | s |")
+    print("|---|---|---|---|---|---|")
+    for eta, eta_c in zip(args.etas, frozen_at):
         t0 = time.perf_counter()
-        model = FitModel.named("newtonian", eta=eta)
-        reading = Readings(problem, model)(np.log([eta]))
-        print(f"| {eta:g} | {problem.mean_reading(reading):.5f} | {problem.loss(reading):.5f} | "
-              f"{time.perf_counter() - t0:.0f} |", flush=True)
+        held = problem.frozen(FitModel.named("newtonian", eta=eta_c).material)
+        reading = Readings(held, FitModel.named("newtonian", eta=eta))(np.log([eta]))
+        print(f"| {eta:g} | {eta_c:g} | {held.config.sound_speed:.3f} | {problem.mean_reading(reading):.5f} | "
+              f"{problem.loss(reading):.5f} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 
 if __name__ == "__main__":
