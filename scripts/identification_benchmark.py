@@ -20,6 +20,8 @@ Every sensor reading goes through the paper's sensor preset (``conf/lab/sensor/p
 ``--seed`` + case index. One torch thread.
 
     python scripts/identification_benchmark.py --part newtonian [--viscosities 0.001 0.01 ...] [--out FILE.json]
+    python scripts/identification_benchmark.py --part newtonian --viscosities 0.05 --newtonian-speed 0.02 \
+        --newtonian-duration 6      # a thin fluid at a slower, longer stir
     python scripts/identification_benchmark.py --part laws [--fluids cs24 ketchup ...] [--out FILE.json]
 """
 
@@ -96,7 +98,8 @@ def finished(path: Path | None) -> list[dict]:
 
 def newtonian_part(args) -> list[dict]:
     truth_config, fine, coarse = sim("lab/sim/truth2d.yaml"), sim("sim/slice2d.yaml"), sim("sim/coarse2d.yaml")
-    trajectory = stirring_programme(NEWTONIAN_PROGRAMME, radius=RADIUS, ramp_time=RAMP)
+    stir = [{"speed": args.newtonian_speed, "duration": args.newtonian_duration}]
+    trajectory = stirring_programme(stir, radius=RADIUS, ramp_time=RAMP)
     sensor, rows, done = sensor_preset(args.sensor), [], finished(args.out)
     print("| η true [Pa·s] | ρ true | ρ [95 % CI] | η fitted [95 % CI] | error | CI holds truth | resolvable | s |")
     print("|---|---|---|---|---|---|---|---|")
@@ -219,6 +222,10 @@ def main() -> None:
     parser.add_argument("--viscosities", type=float, nargs="+", default=[0.001, 0.01, 0.05, 0.2, 1.0, 3.0, 10.0],
                         help="Pa s")
     parser.add_argument("--density", type=float, default=1000.0, help="kg/m^3, the Newtonian sweep's")
+    parser.add_argument("--newtonian-speed", type=float, default=NEWTONIAN_PROGRAMME[0]["speed"],
+                        help="the Newtonian sweep's rod speed [m/s] on its 15 mm circle")
+    parser.add_argument("--newtonian-duration", type=float, default=NEWTONIAN_PROGRAMME[0]["duration"],
+                        help="the Newtonian sweep's stir at that speed [s], after a 0.2 s ramp")
     parser.add_argument("--fluids", nargs="+", default=["jam_like", "thickening", "ketchup"],
                         help="presets in conf/lab/fluid, or jam_like, thickening")
     parser.add_argument("--law-truth-dx", type=float, default=0.004, help="m, the law part's truth cells")
