@@ -222,11 +222,10 @@ class StartLoss:
 def screened_pastes(pool: Workers, problem: JointProblem, names: list[str], curve: FlowCurve) -> dict[str, FitModel]:
     """Each yield-stress law of ``names`` at its best paste start on ``curve``: one start per ``PASTE_SHARES``,
     each simulated once on ``problem`` (side by side in ``pool``), the one of least loss kept."""
-    starts = [(name, paste_start(name, curve, share)) for name in names for share in PASTE_SHARES]
-    losses = pool.map([StartLoss("joint", f"{name}/paste{k}", problem, model)
-                       for k, (name, model) in enumerate(starts)])
+    starts = [(name, share, paste_start(name, curve, share)) for name in names for share in PASTE_SHARES]
+    losses = pool.map([StartLoss("joint", f"{name}/paste{share:g}", problem, model) for name, share, model in starts])
     best: dict[str, tuple[float, FitModel]] = {}
-    for (name, model), loss in zip(starts, losses):
+    for (name, _, model), loss in zip(starts, losses):
         if np.isfinite(loss) and loss < best.get(name, (np.inf, None))[0]:
             best[name] = (loss, model)
     return {name: best[name][1] if name in best else paste_start(name, curve) for name in names}
