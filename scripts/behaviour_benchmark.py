@@ -60,6 +60,20 @@ FLUIDS = {
 }
 
 
+def lab_recording(name: str, args: argparse.Namespace):
+    """The lab's stir of the fluid ``name`` along the benchmark's programme (``synthesise``'s result): truth on
+    ``args.truth_sim`` (cells ``args.truth_dx`` when given), read through the sensor preset ``args.sensor`` with
+    noise seed ``args.seed`` plus the fluid's place in ``FLUIDS``, so that it does not depend on which fluids run."""
+    truth_config = instantiate(OmegaConf.load(ROOT / "conf" / args.truth_sim))
+    if args.truth_dx is not None:
+        truth_config = replace(truth_config, dx=args.truth_dx)
+    sensor = SensorModel(**yaml.safe_load((ROOT / "conf" / "lab" / "sensor" / f"{args.sensor}.yaml").read_text()))
+    trajectory = stirring_programme([{"speed": s, "duration": SEGMENT} for s in SPEEDS], radius=RADIUS, ramp_time=0.2)
+    _, law, density = FLUIDS[name]
+    return synthesise(Fluid(name=name, density=density, law=law), trajectory, sim_config=truth_config,
+                      sensor=sensor, seed=args.seed + list(FLUIDS).index(name), name=name)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fluids", nargs="+", default=list(FLUIDS), choices=list(FLUIDS))
@@ -78,23 +92,15 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     fit_config = instantiate(OmegaConf.load(ROOT / "conf" / args.fit_sim))
-    truth_config = instantiate(OmegaConf.load(ROOT / "conf" / args.truth_sim))
-    if args.truth_dx is not None:
-        truth_config = replace(truth_config, dx=args.truth_dx)
-    sensor = SensorModel(**yaml.safe_load((ROOT / "conf" / "lab" / "sensor" / f"{args.sensor}.yaml").read_text()))
-    segments = [{"speed": s, "duration": SEGMENT} for s in SPEEDS]
-    trajectory = stirring_programme(segments, radius=RADIUS, ramp_time=0.2)
     started = time.perf_counter()
     confusion = np.zeros((len(CLASSES), len(CLASSES) + 1), dtype=int)
     print("| fluid | true class | class (confidence) | slope [95 % CI] | yield Λ | joint: selected, yield weight "
           "(ΔBIC) | seconds |")
     print("|---|---|---|---|---|---|---|")
     for name in args.fluids:
-        truth, law, density = FLUIDS[name]
-        i = list(FLUIDS).index(name)  # the fluid's seed does not depend on which fluids run
+        truth, law, _ = FLUIDS[name]
         t0 = time.perf_counter()
-        lab = synthesise(Fluid(name=name, density=density, law=law), trajectory, sim_config=truth_config,
-                         sensor=sensor, seed=args.seed + i, name=name)
+        lab = lab_recording(name, args)
         try:
             result = characterise([lab.recording], config=fit_config, iterations=args.iterations,
                                   joint_models=args.joint_models, joint_iterations=args.joint_iterations,

@@ -3,9 +3,10 @@
 Each case is a lab recording (coarse 2-D slice, the paper's rig) of a Newtonian base fluid stirred forwards
 (0.06 m/s), held, and stirred backwards at half the speed, read by a component sensor with white noise and
 quantisation, plus one effect the fitter is not told about (or none: a clean recording). The Newtonian law is
-identified (``identify``, coarse, whole recording) and the recording diagnosed (``diagnose``). Printed and written to ``--out``: the confusion matrix of
-the named effect against the concealed one, the false-alarm rate on clean recordings, the share named right at
-moderate strength, and the median reduction of the loss where an effect was present.
+identified (``identify``, coarse, whole recording) and the recording diagnosed (``diagnose``). Printed and
+written to ``--out``: the confusion matrix of the named effect against the concealed one, the false-alarm rate on
+clean recordings, the share named right at moderate strength, and the median reduction of the loss where an effect
+was present.
 
     python scripts/diagnosis_benchmark.py                                       # the default run (~31 min, 1 core)
     python scripts/diagnosis_benchmark.py --strengths weak,moderate,strong --clean-seeds 0,1,2,3,4,5   # larger

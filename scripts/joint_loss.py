@@ -15,21 +15,17 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
-
 import numpy as np
 import torch
-import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from behaviour_benchmark import FLUIDS, RADIUS, ROOT, SEGMENT, SPEEDS
+from behaviour_benchmark import FLUIDS, ROOT, lab_recording
 from diffstir.behaviour.joint import JointProblem
 from diffstir.behaviour.pipeline import combined_density
 from diffstir.behaviour.windows import speed_windows
 from diffstir.identify import FitModel
 from diffstir.identify.optimise import Readings
-from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.recording import load_recording, save_recording
 
 
@@ -60,17 +56,8 @@ def main() -> None:
     if args.recording is not None:
         recording = load_recording(args.recording)
     else:
-        truth_config = instantiate(OmegaConf.load(ROOT / "conf" / args.truth_sim))
-        if args.truth_dx is not None:
-            truth_config = replace(truth_config, dx=args.truth_dx)
-        sensor = SensorModel(**yaml.safe_load((ROOT / "conf" / "lab" / "sensor" / f"{args.sensor}.yaml").read_text()))
-        _, law, density = FLUIDS[args.fluid]
-        trajectory = stirring_programme([{"speed": s, "duration": SEGMENT} for s in SPEEDS], radius=RADIUS,
-                                        ramp_time=0.2)
         t0 = time.perf_counter()
-        recording = synthesise(Fluid(name=args.fluid, density=density, law=law), trajectory, sim_config=truth_config,
-                               sensor=sensor, seed=args.seed + list(FLUIDS).index(args.fluid),
-                               name=args.fluid).recording
+        recording = lab_recording(args.fluid, args).recording
         print(f"lab recording: {time.perf_counter() - t0:.0f} s")
         if args.save is not None:
             save_recording(recording, args.save, overwrite=True)
