@@ -52,7 +52,7 @@ POLISH_ITERATIONS = 2
 #: Shares of the lowest speed's stress that a yield-stress law's paste starts give its yield stress [1]: a paste
 #: whose flow adds as much again as its yield stress, and a nearly plastic one. Over a factor 8 of shear rate a
 #: plastic's stress is nearly flat, and the half-yield start splits it into a yield stress and a low index, far from
-#: a plastic's τ_y and n = 1; on readings of a Bingham plastic the nearly plastic start reads 2.0 mN against 11.5 mN
+#: a plastic's τ_y and n = 1; on readings of a Bingham plastic the nearly plastic start reads closer
 #: (``test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress``). Each start costs one simulation; the one of
 #: least loss is fitted (``screened_pastes``).
 PASTE_SHARES = (0.5, 0.9)
