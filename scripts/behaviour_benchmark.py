@@ -1,7 +1,7 @@
 """Behaviour classification on virtual-lab fluids of every class, borderline ones included: the confusion matrix.
 
-Each fluid is stirred by the lab (``diffstir.lab.synthesise``) along one programme of four speeds a factor 2
-apart, read through a sensor preset (``--sensor``, default the paper's; noise seed ``--seed`` plus the fluid's
+Each fluid is stirred by the lab (``diffstir.lab.synthesise``) along one programme of constant speeds (``--speeds``,
+default four a factor 2 apart from 0.02 m/s, ``--segment`` s each), read through a sensor preset (``--sensor``, default the paper's; noise seed ``--seed`` plus the fluid's
 place in ``FLUIDS``), and classified by ``diffstir.behaviour.characterise`` with ``--iterations`` Gauss-Newton
 steps per window, and with the laws of ``--joint-models`` fitted to every speed at once (default none: the
 per-speed points alone decide; with laws with and without a yield stress, the joint fit decides the yield stress,
@@ -15,6 +15,7 @@ fit, so the fit meets a discretisation gap. Prints one row per fluid and the con
     python scripts/behaviour_benchmark.py --joint-models power_law herschel_bulkley --workers 2
     python scripts/behaviour_benchmark.py --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \
         --truth-dx 0.004 --model-error 0.063    # the 5 mm grid against a 4 mm truth, about 4x faster
+    python scripts/behaviour_benchmark.py --speeds 0.005 0.01 0.02 0.04 0.08 0.16   # slower speeds too
 """
 
 from __future__ import annotations
@@ -38,8 +39,8 @@ from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.recording import RecordingError
 
 ROOT = Path(__file__).resolve().parents[1]
-SPEEDS = (0.02, 0.04, 0.08, 0.16)  # m/s
-SEGMENT = 0.8                       # s per speed
+SPEEDS = (0.02, 0.04, 0.08, 0.16)  # m/s, the programme's default speeds
+SEGMENT = 0.8                       # s per speed, by default
 RADIUS = 0.015                      # m
 
 #: name: (true class, law spec (SI), density kg/m^3); "borderline" fluids sit near a class boundary.
@@ -60,15 +61,28 @@ FLUIDS = {
 }
 
 
+def add_lab_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options that make a fluid's lab recording (``lab_recording``): truth grid, sensor, noise seed, programme."""
+    parser.add_argument("--truth-sim", default="lab/sim/truth2d.yaml", help="truth grid, a file under conf/")
+    parser.add_argument("--truth-dx", type=float, default=None, help="truth cell size [m] (default: the file's)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed; each fluid adds its place in FLUIDS")
+    parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
+    parser.add_argument("--speeds", type=float, nargs="+", default=list(SPEEDS),
+                        help="the programme's rod speeds [m/s], in the order stirred")
+    parser.add_argument("--segment", type=float, default=SEGMENT, help="time at each speed [s]")
+
+
 def lab_recording(name: str, args: argparse.Namespace):
-    """The lab's stir of the fluid ``name`` along the benchmark's programme (``synthesise``'s result): truth on
-    ``args.truth_sim`` (cells ``args.truth_dx`` when given), read through the sensor preset ``args.sensor`` with
-    noise seed ``args.seed`` plus the fluid's place in ``FLUIDS``, so that it does not depend on which fluids run."""
+    """The lab's stir of the fluid ``name`` along the programme ``args.speeds`` (``args.segment`` s each) on a
+    ``RADIUS`` circle (``synthesise``'s result): truth on ``args.truth_sim`` (cells ``args.truth_dx`` when given),
+    read through the sensor preset ``args.sensor`` with noise seed ``args.seed`` plus the fluid's place in
+    ``FLUIDS``, so that it does not depend on which fluids run."""
     truth_config = instantiate(OmegaConf.load(ROOT / "conf" / args.truth_sim))
     if args.truth_dx is not None:
         truth_config = replace(truth_config, dx=args.truth_dx)
     sensor = SensorModel(**yaml.safe_load((ROOT / "conf" / "lab" / "sensor" / f"{args.sensor}.yaml").read_text()))
-    trajectory = stirring_programme([{"speed": s, "duration": SEGMENT} for s in SPEEDS], radius=RADIUS, ramp_time=0.2)
+    trajectory = stirring_programme([{"speed": s, "duration": args.segment} for s in args.speeds], radius=RADIUS,
+                                    ramp_time=0.2)
     _, law, density = FLUIDS[name]
     return synthesise(Fluid(name=name, density=density, law=law), trajectory, sim_config=truth_config,
                       sensor=sensor, seed=args.seed + list(FLUIDS).index(name), name=name)
@@ -78,11 +92,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fluids", nargs="+", default=list(FLUIDS), choices=list(FLUIDS))
     parser.add_argument("--fit-sim", default="sim/slice2d.yaml", help="fitting grid, a file under conf/")
-    parser.add_argument("--truth-sim", default="lab/sim/truth2d.yaml", help="truth grid, a file under conf/")
-    parser.add_argument("--truth-dx", type=float, default=None, help="truth cell size [m] (default: the file's)")
-    parser.add_argument("--seed", type=int, default=0)
+    add_lab_arguments(parser)
     parser.add_argument("--iterations", type=int, default=2, help="Gauss-Newton iterations per window")
-    parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
     parser.add_argument("--model-error", type=float, default=MODEL_FORCE_ERROR,
                         help="relative force error of the fitting grid in every window's interval (0: none)")
     parser.add_argument("--joint-models", nargs="*", default=[], help="laws fitted to all speeds at once")

@@ -3,8 +3,8 @@
 joint fit got.
 
 The fluid is stirred by the lab along the benchmark's programme as ``behaviour_benchmark.py`` stirs it (same
-truth grid, sensor preset and noise seed); every constant-speed window goes into one ``JointProblem`` on
-``--fit-sim``, and each ``--law`` is simulated once, at its own sound speed (``SimConfig.compressibility``).
+truth grid, sensor preset, noise seed and speeds, with the same options); every constant-speed window goes into one
+``JointProblem`` on ``--fit-sim``, and each ``--law`` is simulated once, at its own sound speed (``SimConfig.compressibility``).
 ``--save`` writes the lab recording, ``--recording`` reads it back instead of simulating the truth again.
 
     python scripts/joint_loss.py --fluid bingham --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \\
@@ -20,7 +20,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from behaviour_benchmark import FLUIDS, ROOT, lab_recording
+from behaviour_benchmark import FLUIDS, ROOT, add_lab_arguments, lab_recording
 from diffstir.behaviour.joint import JointProblem
 from diffstir.behaviour.pipeline import combined_density
 from diffstir.behaviour.windows import speed_windows
@@ -42,10 +42,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fluid", default="bingham", choices=list(FLUIDS))
     parser.add_argument("--fit-sim", default="sim/slice2d.yaml", help="fitting grid, a file under conf/")
-    parser.add_argument("--truth-sim", default="lab/sim/truth2d.yaml", help="truth grid, a file under conf/")
-    parser.add_argument("--truth-dx", type=float, default=None, help="truth cell size [m] (default: the file's)")
-    parser.add_argument("--seed", type=int, default=0, help="as the benchmark's; the fluid's place is added")
-    parser.add_argument("--sensor", default="paper", help="sensor preset in conf/lab/sensor/")
+    add_lab_arguments(parser)
     parser.add_argument("--law", nargs="+", required=True, help="laws to simulate, name:param=value,...")
     parser.add_argument("--recording", default=None, help="read the lab recording from this directory")
     parser.add_argument("--save", default=None, help="write the lab recording to this directory")
