@@ -48,6 +48,20 @@ def test_windows_are_the_programme_segments_without_their_ramps():
         assert w.end == pytest.approx((k + 1) * SEGMENT, abs=0.011)
 
 
+def test_a_programme_over_a_wide_range_of_speeds_keeps_its_slowest_and_drops_a_pause():
+    # a factor 40 between the slowest and the fastest speed; the rod held still (speed 0) between them
+    segments = [{"speed": 0.004, "duration": 0.8}, {"speed": 0.0, "duration": 0.8}, {"speed": 0.16, "duration": 0.8}]
+    traj = stirring_programme(segments, radius=0.015, ramp_time=RAMP, sample_rate=200.0)
+    rec = Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
+                    rod=RodGeometry(radius=0.0125, immersion_depth=0.08), sensor=SensorSpec(mode="tangential"),
+                    density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=np.zeros(traj.t.size))
+    windows = speed_windows(rec)
+    assert [w.speed for w in windows] == pytest.approx([0.004, 0.16], rel=1e-3)
+    assert windows[1].start > 1.6  # the pause between them is no window
+    with pytest.raises(ValueError, match="pause_speed"):
+        speed_windows(rec, pause_speed=-1.0)
+
+
 def test_a_recording_without_a_steady_speed_is_refused():
     t = np.linspace(0.0, 3.0, 601)
     phase = 2.0 * t**2  # rad: the speed grows as 4 R t, by 5 % in 0.3 s only after 6 s

@@ -27,7 +27,7 @@ from ..recording import Recording, RecordingError
 from .apparent import ViscosityPoint, window_viscosity
 from .classify import YIELD_SHARE_SIGMAS, Classification, classify, joint_yield_test
 from .joint import JointFit, joint_fit
-from .windows import speed_windows
+from .windows import PAUSE_SPEED, speed_windows
 
 #: Laws fitted to all speeds at once by default.
 JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
@@ -62,7 +62,8 @@ class Behaviour:
 
 def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
-                 speed_tolerance: float = 0.05, min_window: float = 0.3, replicates: int = 200,
+                 speed_tolerance: float = 0.05, min_window: float = 0.3, pause_speed: float = PAUSE_SPEED,
+                 replicates: int = 200,
                  seed: int = 0, model_error: float = MODEL_FORCE_ERROR, workers: int = 1) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
@@ -74,7 +75,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
             Gauss-Newton iterations. With laws both with and without a yield stress among them, the joint fit
             decides the yield stress (``classify``, 3), counting a yield stress that carries more than
             ``YIELD_SHARE_SIGMAS`` σ_m of the stress at the slowest speed.
-        speed_tolerance, min_window: what counts as one speed (``windows.speed_windows``).
+        speed_tolerance, min_window, pause_speed: what counts as one speed (``windows.speed_windows``).
         replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
             (``apparent``); the default is the fitting grid's (``identify.uncertainty``), raise it for a coarser
@@ -88,7 +89,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     points: list[ViscosityPoint] = []
     for rec in recordings:
         guess = None
-        for window in speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window):
+        for window in speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window,
+                                    pause_speed=pause_speed):
             points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations,
                                            model_error=model_error))
             guess = points[-1].viscosity

@@ -3,7 +3,9 @@
 A sample is steady when the rod's speed s(t) [m/s] would change by less than ``tolerance`` · s over ``min_duration``
 at its current rate, |ds/dt| · T_min < tol · s, so ramps between the speeds of a programme (and the start from
 rest) are left out. Runs of steady samples that last at least ``min_duration`` [s] and move faster than
-``tolerance`` times the recording's top speed (pauses are not stirring) are the windows.
+``pause_speed`` [m/s] (a rod held still is not stirring) are the windows. The pause is an absolute speed, not a
+share of the top speed: a programme may span any range of speeds, and its slowest, where a yield stress shows,
+must not be dropped for being slow.
 """
 
 from __future__ import annotations
@@ -32,12 +34,19 @@ class SpeedWindow:
         return f"{name}@{self.start:.3g}-{self.end:.3g}s"
 
 
-def speed_windows(recording: Recording, *, tolerance: float = 0.05, min_duration: float = 0.3) -> list[SpeedWindow]:
+#: m/s: the rod moving slower than this is held still (1 mm/s is 10 µm between samples at 100 Hz, the size of an
+#: arm's position jitter), not stirring.
+PAUSE_SPEED = 1e-3
+
+
+def speed_windows(recording: Recording, *, tolerance: float = 0.05, min_duration: float = 0.3,
+                  pause_speed: float = PAUSE_SPEED) -> list[SpeedWindow]:
     """The constant-speed windows of ``recording`` in time order (see the module docstring).
 
     Args:
         tolerance: relative speed change [1] that still counts as one speed (the arm's speed regulation).
         min_duration: shortest window [s].
+        pause_speed: slower than this [m/s] the rod is held still.
 
     Raises:
         RecordingError: no window (naming the recording's time column and the speeds it holds).
@@ -46,10 +55,12 @@ def speed_windows(recording: Recording, *, tolerance: float = 0.05, min_duration
         raise ValueError(f"behaviour.speed_tolerance = {tolerance}; expected a relative change in (0, 1)")
     if not min_duration > 0:
         raise ValueError(f"behaviour.min_window = {min_duration}; expected a positive duration in s")
+    if not pause_speed >= 0:
+        raise ValueError(f"behaviour.pause_speed = {pause_speed}; expected a speed in m/s, >= 0")
     t = recording.t
     speed = np.linalg.norm(recording.velocity(), axis=1)
     rate = np.abs(np.gradient(speed, t))
-    steady = (rate * min_duration < tolerance * speed) & (speed > tolerance * speed.max())
+    steady = (rate * min_duration < tolerance * speed) & (speed > pause_speed)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(np.int8), [0]])))
     windows = []
     for first, stop in zip(edges[::2], edges[1::2]):
