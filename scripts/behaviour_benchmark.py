@@ -1,11 +1,12 @@
 """Behaviour classification on virtual-lab fluids of every class, borderline ones included: the confusion matrix.
 
 Each fluid is stirred by the lab (``diffstir.lab.synthesise``) along one programme of constant speeds (``--speeds``,
-default four a factor 2 apart from 0.02 m/s, ``--segment`` s each), read through a sensor preset (``--sensor``, default the paper's; noise seed ``--seed`` plus the fluid's
-place in ``FLUIDS``), and classified by ``diffstir.behaviour.characterise`` with ``--iterations`` Gauss-Newton
-steps per window, and with the laws of ``--joint-models`` fitted to every speed at once (default none: the
-per-speed points alone decide; with laws with and without a yield stress, the joint fit decides the yield stress,
-``docs/behaviour.md`` step 4) side by side in ``--workers`` processes.
+default four a factor 2 apart from 0.02 m/s, ``--segment`` s each), read through a sensor preset (``--sensor``,
+default the paper's; noise seed ``--seed`` plus the fluid's place in ``FLUIDS``), and classified by
+``diffstir.behaviour.characterise`` with ``--iterations`` Gauss-Newton steps per window, and with the laws of
+``--joint-models`` fitted to every speed at once (default none: the per-speed points alone decide; with laws with
+and without a yield stress, the joint fit decides the yield stress, ``docs/behaviour.md`` step 4) side by side in
+``--workers`` processes.
 The windows are fitted on ``--fit-sim`` (default ``conf/sim/slice2d.yaml``, 2.5 mm) with its relative force
 error ``--model-error`` (default 0.03, that grid's) in every window's interval; the truth is simulated on
 ``--truth-sim`` (default ``conf/lab/sim/truth2d.yaml``, 2 mm; ``--truth-dx`` changes its cells), finer than the

@@ -2,10 +2,11 @@
 (docs/accuracy.md, Behaviour classification): how well a law *could* fit the joint problem, apart from how far the
 joint fit got.
 
-The fluid is stirred by the lab along the benchmark's programme as ``behaviour_benchmark.py`` stirs it (same
-truth grid, sensor preset, noise seed and speeds, with the same options); every constant-speed window goes into one
-``JointProblem`` on ``--fit-sim``, and each ``--law`` is simulated once, at its own sound speed (``SimConfig.compressibility``).
-``--save`` writes the lab recording, ``--recording`` reads it back instead of simulating the truth again.
+The fluid is stirred by the lab along the benchmark's programme as ``behaviour_benchmark.py`` stirs it (same truth
+grid, sensor preset, noise seed and speeds, with the same options); every constant-speed window goes into one
+``JointProblem`` on ``--fit-sim``, and each ``--law`` is simulated once, at its own sound speed
+(``SimConfig.compressibility``). ``--save`` writes the lab recording, ``--recording`` reads it back instead of
+simulating the truth again.
 
     python scripts/joint_loss.py --fluid bingham --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \\
         --truth-dx 0.004 --law bingham:tau_y=3,eta_p=0.1 power_law:k=2.73,n=0.12
