@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
+
 import numpy as np
 import torch
 from hydra.utils import instantiate

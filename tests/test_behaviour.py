@@ -31,12 +31,16 @@ SPEEDS = (0.04, 0.08, 0.16)  # m/s
 SEGMENT, RAMP = 0.5, 0.1     # s
 
 
-def programme_recording(speeds=SPEEDS):
-    traj = stirring_programme([{"speed": s, "duration": SEGMENT} for s in speeds], radius=0.015, ramp_time=RAMP,
-                              sample_rate=200.0)
+def path_recording(t, x, y):
+    """A recording of the paper's rig whose rod axis follows (x, y) [m] at times t [s], with no force."""
     return Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
                      rod=RodGeometry(radius=0.0125, immersion_depth=0.08), sensor=SensorSpec(mode="tangential"),
-                     density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=np.zeros(traj.t.size))
+                     density=None, t=t, x=x, y=y, force=np.zeros(t.size))
+
+
+def programme_recording(segments=tuple({"speed": s, "duration": SEGMENT} for s in SPEEDS)):
+    traj = stirring_programme(segments, radius=0.015, ramp_time=RAMP, sample_rate=200.0)
+    return path_recording(traj.t, traj.xy[:, 0], traj.xy[:, 1])
 
 
 def test_windows_are_the_programme_segments_without_their_ramps():
@@ -50,11 +54,8 @@ def test_windows_are_the_programme_segments_without_their_ramps():
 
 def test_a_programme_over_a_wide_range_of_speeds_keeps_its_slowest_and_drops_a_pause():
     # a factor 40 between the slowest and the fastest speed; the rod held still (speed 0) between them
-    segments = [{"speed": 0.004, "duration": 0.8}, {"speed": 0.0, "duration": 0.8}, {"speed": 0.16, "duration": 0.8}]
-    traj = stirring_programme(segments, radius=0.015, ramp_time=RAMP, sample_rate=200.0)
-    rec = Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
-                    rod=RodGeometry(radius=0.0125, immersion_depth=0.08), sensor=SensorSpec(mode="tangential"),
-                    density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=np.zeros(traj.t.size))
+    rec = programme_recording([{"speed": 0.004, "duration": 0.8}, {"speed": 0.0, "duration": 0.8},
+                               {"speed": 0.16, "duration": 0.8}])
     windows = speed_windows(rec)
     assert [w.speed for w in windows] == pytest.approx([0.004, 0.16], rel=1e-3)
     assert windows[1].start > 1.6  # the pause between them is no window
@@ -65,9 +66,7 @@ def test_a_programme_over_a_wide_range_of_speeds_keeps_its_slowest_and_drops_a_p
 def test_a_recording_without_a_steady_speed_is_refused():
     t = np.linspace(0.0, 3.0, 601)
     phase = 2.0 * t**2  # rad: the speed grows as 4 R t, by 5 % in 0.3 s only after 6 s
-    rec = Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
-                    rod=RodGeometry(radius=0.0125, immersion_depth=0.08), sensor=SensorSpec(mode="tangential"),
-                    density=None, t=t, x=0.015 * np.cos(phase), y=0.015 * np.sin(phase), force=np.zeros(t.size))
+    rec = path_recording(t, 0.015 * np.cos(phase), 0.015 * np.sin(phase))
     with pytest.raises(RecordingError, match="one speed"):
         speed_windows(rec)
 

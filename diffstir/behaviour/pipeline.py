@@ -63,8 +63,8 @@ class Behaviour:
 def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, pause_speed: float = PAUSE_SPEED,
-                 replicates: int = 200,
-                 seed: int = 0, model_error: float = MODEL_FORCE_ERROR, workers: int = 1) -> Behaviour:
+                 replicates: int = 200, seed: int = 0, model_error: float = MODEL_FORCE_ERROR,
+                 workers: int = 1) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
