@@ -7,7 +7,9 @@ Two parts, each printing markdown tables:
   truth simulated on ``conf/lab/sim/truth2d.yaml`` (2 mm cells, finer than the fit). Per fluid: the density and
   the viscosity with their 95 % intervals, the error, whether the interval holds the truth, and whether the
   recording resolves viscosity at all (``resolvable``: a doubling of η must change the reading by more than the
-  noise and the sensor's resolution; where it does not, the report says "not identifiable").
+  noise and the sensor's resolution; where it does not, the report says "not identifiable"). Beside it the estimate
+  from the reading's size (``identify.magnitude``, the report's ``magnitude``): its viscosity, interval, error and
+  whether it resolves the viscosity.
 * ``laws``: fluids of every non-Newtonian class (presets of ``conf/lab/fluid`` or ``EXTRA_FLUIDS``) stirred at three
   speeds, identified with every
   default law and the corotated baseline: the paper's Tables II-IV in shape (parameters per law with the truth, the
@@ -101,8 +103,9 @@ def newtonian_part(args) -> list[dict]:
     stir = [{"speed": args.newtonian_speed, "duration": args.newtonian_duration}]
     trajectory = stirring_programme(stir, radius=RADIUS, ramp_time=RAMP)
     sensor, rows, done = sensor_preset(args.sensor), [], finished(args.out)
-    print("| η true [Pa·s] | ρ true | ρ [95 % CI] | η fitted [95 % CI] | error | CI holds truth | resolvable | s |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| η true [Pa·s] | ρ true | ρ [95 % CI] | η fitted [95 % CI] | error | CI holds truth | resolvable | "
+          "η from size [95 % CI] | error | CI holds truth | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for i, eta in enumerate(args.viscosities):
         if any(r["eta_true"] == eta for r in done):
             rows.append(next(r for r in done if r["eta_true"] == eta))
@@ -117,8 +120,10 @@ def newtonian_part(args) -> list[dict]:
                           sensor_nuisance=args.sensor_nuisance, model_error=model_error)
         law = result.summary()["laws"]["newtonian"]
         fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"]
-        rho = result.density
-        row = {"eta_true": eta, "eta": fitted, "ci95": [lo, hi], "error": fitted / eta - 1.0,
+        rho, size = result.density, result.magnitude
+        row = {"size": {"eta": size["viscosity"], "ci95": size["ci95"], "error": size["viscosity"] / eta - 1.0,
+                        "covered": holds(*size["ci95"], eta), "resolved": size["resolved"]},
+               "eta_true": eta, "eta": fitted, "ci95": [lo, hi], "error": fitted / eta - 1.0,
                "covered": holds(lo, hi, eta), "resolvable": result.resolvable["viscosity"],
                "density_true": density, "density": rho["value"], "density_ci95": rho["ci95"],
                "density_covered": holds(*rho["ci95"], density),
@@ -129,7 +134,7 @@ def newtonian_part(args) -> list[dict]:
         print(f"| {eta:g} | {density:g} | {rho['value']:.1f} [{rho['ci95'][0]:.1f}, {rho['ci95'][1]:.1f}] | "
               f"{fitted:.4g} [{_fmt(lo)}, {_fmt(hi)}]{verdict} | {100 * row['error']:+.1f} % | "
               f"{'yes' if row['covered'] else 'no'} | {'yes' if row['resolvable'] else 'no'} | "
-              f"{row['seconds']:.0f} |", flush=True)
+              f"{_size_cells(row['size'])} | {row['seconds']:.0f} |", flush=True)
     return rows
 
 
@@ -212,6 +217,13 @@ def holds(lo: float | None, hi: float | None, value: float) -> bool:
     return (lo is None or lo <= value) and (hi is None or value <= hi)
 
 
+def _size_cells(size: dict) -> str:
+    """The size estimate's three cells: η [95 % CI] (flagged when not resolved), error, whether the CI holds."""
+    verdict = "" if size["resolved"] else " (not resolved)"
+    return (f"{size['eta']:.4g} [{_fmt(size['ci95'][0])}, {_fmt(size['ci95'][1])}]{verdict} | "
+            f"{100 * size['error']:+.1f} % | {'yes' if size['covered'] else 'no'}")
+
+
 def _fmt(x) -> str:
     return "-" if x is None else f"{x:.3g}"
 
@@ -257,6 +269,11 @@ def main() -> None:
               f"viscosity intervals holding the truth: {sum(r['covered'] for r in rows)}/{len(rows)}; "
               f"density within 1 %: {sum(abs(r['density'] / r['density_true'] - 1) <= 0.01 for r in rows)}/"
               f"{len(rows)}, intervals holding it: {sum(r['density_covered'] for r in rows)}/{len(rows)}")
+        sized = [r["size"] for r in rows if "size" in r]
+        resolved = [s for s in sized if s["resolved"]]
+        print(f"from the reading's size: resolved {len(resolved)}/{len(sized)}; within 10 %: "
+              f"{sum(abs(s['error']) <= 0.10 for s in resolved)}/{len(resolved)}; intervals holding the truth: "
+              f"{sum(s['covered'] for s in sized)}/{len(sized)}")
     else:
         print(f"\nfamily right: {sum(r['class'] == r['true_class'] for r in rows)}/{len(rows)} (lowest loss: "
               f"{sum(r['lowest_loss_class'] == r['true_class'] for r in rows)}/{len(rows)}); η(γ̇_eff) within "

@@ -316,6 +316,9 @@ def test_newtonian_viscosity_is_recovered_within_its_interval(newtonian_identifi
     # the fit's residual is the sensor noise
     assert unc.residual_std == pytest.approx(NOISE, rel=0.3)
     assert result.resolvable["viscosity"]
+    # the reading's size alone (identify.magnitude) finds it too, its interval holding the 3 % model error
+    magnitude = result.magnitude
+    assert magnitude["resolved"] and magnitude["ci95"][0] < TRUE_ETA < magnitude["ci95"][1]
 
 
 def test_a_lag_free_recording_fits_no_lag(newtonian_recording):
@@ -406,6 +409,7 @@ def test_report_files(newtonian_identification):
     assert report["laws"]["newtonian"]["sensor"] == {"units": {}}  # no sensor nuisances by default
     assert report["family"]["class"] == "newtonian"  # a Newtonian fluid is Newtonian over any band
     assert "newtonian" in paths["md"].read_text() and "BIC margin of" in paths["md"].read_text()
+    assert report["magnitude"]["resolved"] and "from the reading's size" in paths["md"].read_text()
     assert all(paths[k].stat().st_size > 0 for k in ("forces", "flow_curves", "losses"))
     assert any((out / "tb").iterdir())
 

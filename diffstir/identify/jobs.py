@@ -24,6 +24,7 @@ import numpy as np
 
 from ..parallel import Workers
 from .initial import mean_readings
+from .magnitude import MAX_STEPS, MagnitudeEstimate, magnitude_estimate
 from .models import FitModel
 from .nuisance import SensorNuisance
 from .optimise import FitResult, fit_model
@@ -91,6 +92,23 @@ class ReadingJob:
 
     def run(self, report: Callable[[tuple], None]) -> float:
         return mean_readings(self.problem, [self.model], lambda *data: report(("evaluation", self.stage, *data)))[0]
+
+
+@dataclass
+class MagnitudeJob:
+    """The Newtonian viscosity whose simulated reading has the size of ``problem``'s (``magnitude``), from
+    ``start`` [Pa·s], with the simulator's relative force error ``model_error`` in its interval."""
+
+    stage: str
+    key: str
+    problem: StirProblem
+    start: float
+    model_error: float
+    priority: tuple[bool, int] = (False, MAX_STEPS + 1)  # nothing waits for it: after the Newtonian fits
+
+    def run(self, report: Callable[[tuple], None]) -> MagnitudeEstimate:
+        return magnitude_estimate(self.problem, self.start, self.model_error,
+                                  on_evaluation=lambda *data: report(("evaluation", self.stage, *data)))
 
 
 def mean_readings_on(workers: Workers, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:

@@ -29,7 +29,7 @@ from ..recording import Recording, RecordingError
 from ..rheology import LAWS
 from .family import law_family
 from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
-from .jobs import mean_readings_on
+from .jobs import MagnitudeJob, mean_readings_on
 from .models import FitModel
 from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
 from .optimise import FitResult, noise_scale
@@ -57,6 +57,7 @@ class Identification:
     preliminary: dict
     model_error: float = 0.0
     refined: dict | None = None
+    magnitude: dict | None = None
 
     @property
     def selected(self) -> FitResult:
@@ -99,6 +100,7 @@ class Identification:
             "apparent_viscosity": self.apparent_viscosity(self.selection["selected"]),
             "preliminary": self.preliminary,
             "resolvable": self.resolvable,
+            "magnitude": self.magnitude,
             "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
                         "end": self.problem.windows.end, "unit": "s"},
             "shear_rate_range": list(self.probed_shear_rates()),
@@ -226,13 +228,27 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         plan = Plan(stages, names, ladder_estimate=state["ladder"]["estimate"],
                     shear_rate=state["effective_shear_rate"], optimizer=optimizer, sensor=sensor, stage_dt=stage_dt,
                     done=state["done"], running=state["running"])
-        for job in plan.ready():
-            pool.submit(job)
-        for job, fit in pool.completed():
-            plan.finish(job, fit)
-            save()
+        magnitude_pending = False
+
+        def submit_ready() -> None:
+            """The fits whose inputs are known, and the magnitude estimate once the last Newtonian fit is."""
+            nonlocal magnitude_pending
             for ready in plan.ready():
                 pool.submit(ready)
+            newtonian = plan.fits[stages[-1].name].get("newtonian")
+            if newtonian is not None and "magnitude" not in state and not magnitude_pending:
+                eta = newtonian.model.params_si()["eta"]
+                pool.submit(MagnitudeJob(stages[-1].name, "magnitude", problem, eta, model_error))
+                magnitude_pending = True
+
+        submit_ready()
+        for job, result in pool.completed():
+            if isinstance(job, MagnitudeJob):
+                state["magnitude"] = result.summary()
+            else:
+                plan.finish(job, result)
+            save()
+            submit_ready()
     fits = plan.final()
     tracker.close()
 
@@ -254,7 +270,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
-                          seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem))
+                          seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
+                          magnitude=state["magnitude"])
 
 
 def density_estimate(recording: Recording, density: float | None) -> dict:

@@ -51,9 +51,16 @@ def markdown(summary: dict) -> str:
         value = "-" if refined["value"] is None else f"{refined['value']:.4g} Pa·s"
         lines.append(f"- refined by the rectifier: {value} ({refined['note']})")
     if not summary["resolvable"]["viscosity"]:
-        lines.append("- **not identifiable**: doubling the viscosity changes the reading by "
+        lines.append("- **not identifiable** from the waveform: doubling the viscosity changes the reading by "
                      f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "
-                     f"({summary['resolvable']['noise']:.3g} N); the numbers above are not measurements")
+                     f"({summary['resolvable']['noise']:.3g} N); the fitted numbers are not measurements")
+    magnitude = summary.get("magnitude")
+    if magnitude is not None:
+        lo, hi = magnitude["ci95"]
+        lines.append(f"- Newtonian viscosity from the reading's size (mean |reading| {magnitude['mean_abs_reading']:.3g}"
+                     f" N): {magnitude['viscosity']:.4g} Pa·s (95 % CI {format_bound(lo)}-{format_bound(hi)})"
+                     + ("" if magnitude["resolved"] else "; **not resolved**: the size of the reading does not fix "
+                        "the viscosity within a factor 2"))
     lines += ["", "| law | loss [N] | held-out loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|---|"]
     rows = dict(summary["laws"])
     if summary.get("baseline"):
