@@ -77,6 +77,13 @@ def test_noise_as_large_as_half_the_reading_is_not_read_as_viscosity():
     assert (naive - problem.a0) / problem.a1 > estimate.ci95[1]
 
 
+def test_a_start_at_the_root_still_measures_the_slope_there():
+    problem = _InertialProblem(0.4, noise=1e-5, seed=0)
+    estimate = magnitude_estimate(problem, start=0.4, model_error=0.03)
+    assert estimate.resolved and estimate.ci95[0] < 0.4 < estimate.ci95[1]
+    assert estimate.slope == pytest.approx(problem.log_slope(0.4), rel=0.1)
+
+
 def test_a_model_error_widens_the_interval_by_its_share_over_the_slope():
     problem = _InertialProblem(0.4, noise=1e-5, seed=0)
     estimate = magnitude_estimate(problem, start=0.1, model_error=0.03)

@@ -103,6 +103,8 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
         return points[x]
 
     x_hat, found = _solve(log_m, target, math.log(start), FIRST_STEP, bounds, points)
+    if len(points) == 1:  # the start was the root: one more simulation for the slope there
+        log_m(float(np.clip(x_hat + 2 * MIN_SECANT, *bounds)))
     slope = _slope_at(points, x_hat)
     p = readings(np.array([x_hat]))[train]
     mean_variance = float(np.mean(p**2 + noise**2 - expected_magnitude(p, noise) ** 2)) / p.size
