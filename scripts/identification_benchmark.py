@@ -122,7 +122,8 @@ def newtonian_part(args) -> list[dict]:
         fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"]
         rho, size = result.density, result.magnitude
         row = {"size": {"eta": size["viscosity"], "ci95": size["ci95"], "error": size["viscosity"] / eta - 1.0,
-                        "covered": holds(*size["ci95"], eta), "resolved": size["resolved"]},
+                        "covered": holds(*size["ci95"], eta), "resolved": size["resolved"],
+                        "log_slope": size["log_slope"]},
                "eta_true": eta, "eta": fitted, "ci95": [lo, hi], "error": fitted / eta - 1.0,
                "covered": holds(lo, hi, eta), "resolvable": result.resolvable["viscosity"],
                "density_true": density, "density": rho["value"], "density_ci95": rho["ci95"],

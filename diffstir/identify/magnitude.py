@@ -24,8 +24,9 @@ the sensor's white noise averaged over the N fitted samples and σ_m the simulat
 the reading stops growing with η (the inertial floor of thin fluids) an end is not found and the interval is open
 there; where the slope at η̂ puts an end beyond a factor e^``MAX_STEP`` it is left open without a search. The
 estimate **resolves** the viscosity when both ends are found within a factor ``RESOLVED_FACTOR`` of η̂:
-at the default stir the fitting grid's d ln M / d ln η is about 0.16 at 0.05 Pa·s and 0.1 at 0.02 Pa·s, so σ_m =
-3 % alone spans ±40 % and more (docs/accuracy.md).
+at the default stir the fitting grid's d ln M / d ln η is about 0.2 from 0.035 to 0.07 Pa·s and 0.06 from 0.0125 to
+0.025 Pa·s (``scripts/loss_scan.py``, docs/accuracy.md), so σ_m = 3 % alone spans ±0.3 in ln η at 0.05 Pa·s and
+resolves nothing much below it.
 """
 
 from __future__ import annotations

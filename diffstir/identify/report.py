@@ -57,8 +57,9 @@ def markdown(summary: dict) -> str:
     magnitude = summary.get("magnitude")
     if magnitude is not None:
         lo, hi = magnitude["ci95"]
-        lines.append(f"- Newtonian viscosity from the reading's size (mean |reading| {magnitude['mean_abs_reading']:.3g}"
-                     f" N): {magnitude['viscosity']:.4g} Pa·s (95 % CI {format_bound(lo)}-{format_bound(hi)})"
+        lines.append(f"- Newtonian viscosity from the reading's size (mean |reading| "
+                     f"{magnitude['mean_abs_reading']:.3g} N): {magnitude['viscosity']:.4g} Pa·s "
+                     f"(95 % CI {format_bound(lo)}-{format_bound(hi)})"
                      + ("" if magnitude["resolved"] else "; **not resolved**: the size of the reading does not fix "
                         "the viscosity within a factor 2"))
     lines += ["", "| law | loss [N] | held-out loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|---|"]
