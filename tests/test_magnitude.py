@@ -102,3 +102,22 @@ def test_a_thin_fluid_below_the_inertial_floor_is_not_resolved():
     assert estimate.ci95[0] < 0.001 / RESOLVED_FACTOR
     summary = estimate.summary()
     assert summary["resolved"] is False and summary["units"]["viscosity"] == "Pa s"
+
+
+class _BlowsUpAbove(_InertialProblem):
+    """A stand-in whose simulation blows up for η above ``limit`` [Pa·s], as an explicit step past its bound."""
+
+    def __init__(self, eta_true: float, limit: float):
+        super().__init__(eta_true, noise=1e-4, seed=0)
+        self.limit = limit
+
+    def simulate(self, law):
+        if float(law(torch.ones(1, dtype=torch.float64))) > self.limit:
+            raise FloatingPointError("the simulation became non-finite at step 3")
+        return super().simulate(law)
+
+
+def test_a_simulation_that_blows_up_ends_the_search_without_failing_the_identification():
+    problem = _BlowsUpAbove(0.4, limit=0.3)  # the root lies where the simulator cannot go
+    estimate = magnitude_estimate(problem, start=0.1, model_error=0.03)
+    assert not estimate.resolved and estimate.viscosity <= 0.3 and math.isfinite(estimate.slope)

@@ -92,7 +92,12 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
     train = problem.train
     measured = problem.measured[train]
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
-    target = math.log(float(np.mean(np.abs(measured))))
+    size = float(np.mean(np.abs(measured)))
+    if not size > 0:
+        source = problem.recording.path or problem.recording.name
+        raise ValueError(f"{source}: the force column's fitted samples have a mean |reading| of {size} N; a stir's "
+                         "reading must move for its size to give a viscosity")
+    target = math.log(size)
     model = FitModel.named("newtonian", eta=start)
     readings = Readings(problem, model, on_evaluation)
     bounds = (float(model.lower[0]), float(model.upper[0]))
@@ -100,7 +105,8 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
 
     def log_m(x: float) -> float:
         if x not in points:
-            points[x] = math.log(float(np.mean(expected_magnitude(readings(np.array([x]))[train], noise))))
+            size = float(np.mean(expected_magnitude(readings(np.array([x]))[train], noise)))
+            points[x] = math.log(size) if size > 0 else math.nan  # NaN: the simulation blew up
         return points[x]
 
     x_hat, found = _solve(log_m, target, math.log(start), FIRST_STEP, bounds, points)
@@ -130,6 +136,8 @@ def _solve(log_m, target: float, x0: float, step: float, bounds: tuple[float, fl
     x, tried = float(np.clip(x0, *bounds)), []
     for _ in range(MAX_STEPS + 1):
         y = log_m(x)
+        if not math.isfinite(y):
+            break  # the simulation blew up (``optimise.Readings``): no further that way
         if abs(y - target) < TOLERANCE:
             return x, True
         tried.append(x)
@@ -139,15 +147,18 @@ def _solve(log_m, target: float, x0: float, step: float, bounds: tuple[float, fl
         if x_new == x:
             break  # at a bound of the Newtonian law
         x = x_new
-    closest = min(points, key=lambda p: abs(points[p] - target))
+    finite = [p for p in points if math.isfinite(points[p])]
+    if not finite:
+        return x0, False
+    closest = min(finite, key=lambda p: abs(points[p] - target))
     return closest, abs(points[closest] - target) < TOLERANCE
 
 
 def _slope_at(points: dict[float, float], x: float) -> float:
     """d ln M / d ln η at ``x`` from the simulated ``points`` (ln η → ln M): the secant from the nearest to the
-    nearest of those at least ``MIN_SECANT`` from it (NaN without one)."""
-    ordered = sorted(points, key=lambda p: abs(p - x))
-    apart = [p for p in ordered[1:] if abs(p - ordered[0]) >= MIN_SECANT]
+    nearest of those at least ``MIN_SECANT`` from it (NaN without one); simulations that blew up are left out."""
+    ordered = sorted((p for p in points if math.isfinite(points[p])), key=lambda p: abs(p - x))
+    apart = [p for p in ordered[1:] if abs(p - ordered[0]) >= MIN_SECANT] if ordered else []
     return (points[apart[0]] - points[ordered[0]]) / (apart[0] - ordered[0]) if apart else math.nan
 
 
