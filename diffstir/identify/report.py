@@ -49,7 +49,7 @@ def markdown(summary: dict) -> str:
                  f"{pre['mean_stirring_speed']:.3g} m/s")
     if refined is not None:
         value = "-" if refined["value"] is None else f"{refined['value']:.4g} Pa·s"
-        lines.append(f"- refined by the rectifier: {value} ({refined['note']})")
+        lines.append(f"- learned sim-to-real rectifier: {value} ({refined['note']})")
     if not summary["resolvable"]["viscosity"]:
         lines.append("- **not identifiable** from the waveform: doubling the viscosity changes the reading by "
                      f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "
