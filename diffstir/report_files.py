@@ -18,6 +18,11 @@ def json_default(value):
     raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
 
 
+def finite_or_none(value: float) -> float | None:
+    """``value`` for a JSON summary: None where it is not finite (an interval's open end, an unresolved slope)."""
+    return value if np.isfinite(value) else None
+
+
 def to_json(summary: Mapping) -> str:
     """``summary`` as indented JSON text with a final newline."""
     return json.dumps(summary, indent=2, default=json_default) + "\n"

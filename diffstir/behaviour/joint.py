@@ -37,6 +37,7 @@ from ..identify.selection import bic, rank
 from ..identify.uncertainty import Uncertainty, laplace
 from ..mpm import SimConfig
 from ..parallel import Workers
+from ..report_files import finite_or_none
 from ..rheology import FlowCurve, fit_flow_curve, has_yield_stress, within_bounds
 from .apparent import ViscosityPoint
 from .windows import SpeedWindow
@@ -121,7 +122,8 @@ class JointFit:
 
     def summary(self) -> dict:
         laws = {name: {"params": fit.model.params_si(), "units": fit.model.units,
-                       "ci95": {k: [_finite(lo), _finite(hi)] for k, (lo, hi) in self.uncertainty[name].ci95.items()},
+                       "ci95": {k: [finite_or_none(lo), finite_or_none(hi)]
+                                for k, (lo, hi) in self.uncertainty[name].ci95.items()},
                        "identifiable": self.uncertainty[name].identifiable, "loss": fit.loss, "bic": self.bic[name],
                        "evaluations": fit.evaluations, "seconds": fit.seconds}
                 for name, fit in self.fits.items()}
@@ -241,7 +243,3 @@ def _stress_reference(fits: dict[str, FitResult], shear_rate: np.ndarray) -> Flo
     fit = min(liquids.values(), key=lambda f: f.loss)
     eta, _ = fit.model.viscosity(shear_rate, fit.theta)
     return FlowCurve(shear_rate, eta * shear_rate)
-
-
-def _finite(value: float) -> float | None:
-    return value if np.isfinite(value) else None

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
+from ..report_files import finite_or_none
 from .models import FitModel
 from .optimise import Readings, noise_scale
 from .problem import StirProblem
@@ -77,8 +78,8 @@ class MagnitudeEstimate:
     simulations: int
 
     def summary(self) -> dict:
-        return {"viscosity": self.viscosity, "ci95": [_finite(v) for v in self.ci95], "resolved": self.resolved,
-                "log_slope": _finite(self.slope), "mean_abs_reading": self.measured,
+        return {"viscosity": self.viscosity, "ci95": [finite_or_none(v) for v in self.ci95], "resolved": self.resolved,
+                "log_slope": finite_or_none(self.slope), "mean_abs_reading": self.measured,
                 "relative_error": self.relative_error, "simulations": self.simulations,
                 "units": {"viscosity": "Pa s", "mean_abs_reading": "N"},
                 "method": "Newtonian viscosity whose simulated mean |reading| (sensor noise folded in) matches the "
@@ -105,8 +106,8 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
 
     def log_m(x: float) -> float:
         if x not in points:
-            size = float(np.mean(expected_magnitude(readings(np.array([x]))[train], noise)))
-            points[x] = math.log(size) if size > 0 else math.nan  # NaN: the simulation blew up
+            simulated = float(np.mean(expected_magnitude(readings(np.array([x]))[train], noise)))
+            points[x] = math.log(simulated) if simulated > 0 else math.nan  # NaN: the simulation blew up
         return points[x]
 
     x_hat, found = _solve(log_m, target, math.log(start), FIRST_STEP, bounds, points)
@@ -160,7 +161,3 @@ def _slope_at(points: dict[float, float], x: float) -> float:
     ordered = sorted((p for p in points if math.isfinite(points[p])), key=lambda p: abs(p - x))
     apart = [p for p in ordered[1:] if abs(p - ordered[0]) >= MIN_SECANT] if ordered else []
     return (points[apart[0]] - points[ordered[0]]) / (apart[0] - ordered[0]) if apart else math.nan
-
-
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None

@@ -26,6 +26,7 @@ from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
+from ..report_files import finite_or_none
 from ..rheology import LAWS
 from .family import law_family
 from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
@@ -78,7 +79,7 @@ class Identification:
             unc = self.uncertainty[name]
             laws[name] = {
                 "params": fit.model.params_si(), "units": fit.model.units,
-                "ci95": {k: [_json(lo), _json(hi)] for k, (lo, hi) in unc.ci95.items()},
+                "ci95": {k: [finite_or_none(lo), finite_or_none(hi)] for k, (lo, hi) in unc.ci95.items()},
                 "identifiable": unc.identifiable, "at_bound": unc.at_bound,
                 "loss": fit.loss, "holdout_loss": fit.holdout_loss,
                 "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
@@ -324,10 +325,6 @@ def _load_checkpoint(path: str | Path | None, settings: dict) -> dict:
         raise ValueError(f"{path}: the checkpoint was written with other settings ({', '.join(changed)}); "
                          "use another out directory or delete the checkpoint to start afresh")
     return state
-
-
-def _json(value: float) -> float | None:
-    return value if math.isfinite(value) else None
 
 
 class _Tracker:

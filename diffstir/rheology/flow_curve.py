@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike
 from scipy import optimize, stats
 from torch import Tensor
 
+from diffstir.report_files import finite_or_none
 from diffstir.rheology.laws import DEFAULT_SHEAR_RATE_REG, LAWS, RegularisedLaw, RheologyLaw
 from diffstir.rheology.parameters import from_raw, to_raw
 
@@ -224,7 +225,7 @@ class FlowCurveFit:
             "curve": self.curve_name,
             "params": dict(self.params),
             "units": dict(self.units),
-            "ci95": {key: [_json_float(lo), _json_float(hi)] for key, (lo, hi) in self.ci95.items()},
+            "ci95": {key: [finite_or_none(lo), finite_or_none(hi)] for key, (lo, hi) in self.ci95.items()},
             "at_bound": dict(self.at_bound),
             "identifiable": dict(self.identifiable),
             "shear_rate_reg": shear_rate_reg,
@@ -562,7 +563,3 @@ _GUESSES = {
     "herschel_bulkley": _guess_herschel_bulkley,
     "bingham": _guess_bingham,
 }
-
-
-def _json_float(value: float) -> float | None:
-    return value if math.isfinite(value) else None
