@@ -57,7 +57,7 @@ def main() -> None:
     lab = Lab(fluids()[args.fluid], config)
     recording, truth = lab.recording(args.effect, STRENGTHS[args.strength], args.seed)
     ident = identify(recording, ["newtonian"], config=config, baseline=False, window=None, holdout_fraction=0.0,
-                     max_iterations=args.identify_iterations, progress=False, sensor_nuisance=())
+                     max_iterations=args.identify_iterations, progress=False, sensor_nuisance=(), size_estimate=False)
     eta_identified = ident.selected.model.params_si()["eta"]
     problem = StirProblem(recording, config, ident.density["value"], Windows.of(recording, None, 0.0))
     base = base_from_identification(ident, problem)

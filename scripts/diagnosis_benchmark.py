@@ -134,7 +134,7 @@ def run_case(lab: Lab, effect: str, strength: str, seed: int, config: SimConfig,
     started = time.perf_counter()
     recording, truth = lab.recording(effect, STRENGTHS[strength], seed)
     ident = identify(recording, ["newtonian"], config=config, baseline=False, window=None, holdout_fraction=0.0,
-                     max_iterations=args.identify_iterations, progress=False, sensor_nuisance=())
+                     max_iterations=args.identify_iterations, progress=False, sensor_nuisance=(), size_estimate=False)
     diag = diagnose(recording, ident, config=config, max_iterations=args.max_iterations)
     name = f"{effect}-{strength}-{lab.fluid.name.replace(' ', '_')}-{seed}"
     if args.write_reports:

@@ -156,7 +156,8 @@ def laws_part(args) -> list[dict]:
             MODEL_FORCE_ERROR if args.law_fine else COARSE_FORCE_ERROR)
         result = identify(lab.recording, **stages, baseline=True, window=None, max_iterations=args.iterations,
                           fine_iterations=args.fine_iterations, progress=False,
-                          sensor_nuisance=args.sensor_nuisance, model_error=model_error)
+                          sensor_nuisance=args.sensor_nuisance, model_error=model_error,
+                          size_estimate=False)
         summary = result.summary()
         law = fluid.make_law().double()
         rate = summary["apparent_viscosity"]["effective_shear_rate"]

@@ -325,8 +325,10 @@ def test_a_lag_free_recording_fits_no_lag(newtonian_recording):
     # made by the fitting simulator with white noise only: the profiled lag must stay far below the 50 ms ramp,
     # the fastest change in the reading, and the viscosity stays within its interval
     result = identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
-                      holdout_fraction=0.0, max_iterations=3, progress=False, sensor_nuisance=("lag",))
+                      holdout_fraction=0.0, max_iterations=3, progress=False, sensor_nuisance=("lag",),
+                      size_estimate=False)
     fit, unc = result.fits["newtonian"], result.uncertainty["newtonian"]
+    assert result.magnitude is None and result.summary()["magnitude"] is None  # not asked for
     assert fit.sensor["lag"] < 0.005
     assert unc.ci95["eta"][0] < TRUE_ETA < unc.ci95["eta"][1]
     assert result.summary()["laws"]["newtonian"]["sensor"]["units"] == {"lag": "s"}

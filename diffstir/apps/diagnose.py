@@ -30,7 +30,8 @@ def main(cfg: DictConfig) -> None:
     if cfg.identification is None:
         identification = identify(recording, ["newtonian"], config=config, density=cfg.density, baseline=False,
                                   window=cfg.window, holdout_fraction=0.0, max_iterations=cfg.identify_iterations,
-                                  progress=cfg.progress, sensor_nuisance=(), workers=workers)
+                                  progress=cfg.progress, sensor_nuisance=(), size_estimate=False,
+                                  workers=workers)
     else:
         identification = to_absolute_path(str(cfg.identification))
     result = diagnose(recording, identification, config=config, window=cfg.window, candidates=list(cfg.candidates),

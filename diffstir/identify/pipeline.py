@@ -133,7 +133,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
              coarse: SimConfig | None = None, fine_iterations: int = 3,
              sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR,
-             workers: int = 1) -> Identification:
+             size_estimate: bool = True, workers: int = 1) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -156,6 +156,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             none).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, added to every interval
             (``uncertainty``; 0: the intervals hold the noise only).
+        size_estimate: also estimate the Newtonian viscosity from the size of the reading (``magnitude``), beside
+            the fits; a caller that reads only the fits (the diagnosis) saves its simulations with False.
     """
     checked_model_error(model_error, "fit.model_error")
     unknown = sorted(set(models) - set(LAWS))
@@ -237,7 +239,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             for ready in plan.ready():
                 pool.submit(ready)
             newtonian = plan.fits[stages[-1].name].get("newtonian")
-            if newtonian is not None and "magnitude" not in state and not magnitude_pending:
+            if size_estimate and newtonian is not None and "magnitude" not in state and not magnitude_pending:
                 eta = newtonian.model.params_si()["eta"]
                 pool.submit(MagnitudeJob(stages[-1].name, "magnitude", problem, eta, model_error))
                 magnitude_pending = True
@@ -272,7 +274,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
-                          magnitude=state["magnitude"])
+                          magnitude=state.get("magnitude"))
 
 
 def density_estimate(recording: Recording, density: float | None) -> dict:
