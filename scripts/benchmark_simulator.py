@@ -12,6 +12,7 @@ absolute ms move with the other jobs, the ratios much less. Variants:
 - ``compiled``: ``SimConfig.compile = True`` (compiled once in an untimed warm-up run).
 - ``projection``: ``SimConfig.pressure = "projection"`` (2-D scenes only), the incompressible pressure; its time
   step is longer (no acoustic limit), so compare the cost per simulated second from the dt column too.
+- ``walls``: ``SimConfig.wall_pressure = True``, boundary particles in the solids carrying the fluid's pressure.
 - ``reference``: another checkout's simulator (``--reference-tree DIR``, a directory holding a ``diffstir``
   package, e.g. ``git worktree add /tmp/diffstir-ref <commit>``), imported side by side under another name.
 
@@ -77,6 +78,8 @@ def build(variant: str, scene: str, reference) -> tuple:
         settings["compile"] = True
     if variant == "projection":
         settings["pressure"] = "projection"
+    if variant == "walls":
+        settings["wall_pressure"] = True
     law = modules["rheology"].Carreau(eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
     sim = modules["mpm"].StirringSimulator(law, modules["rig"].Rig(), modules["mpm"].SimConfig(**settings),
                                            density=1000.0)
@@ -133,7 +136,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--scenes", nargs="+", default=["paper3d", "slice2d"], choices=list(SCENES))
     parser.add_argument("--variants", nargs="+", default=["eager", "compiled"],
-                        choices=["eager", "compiled", "projection", "reference"])
+                        choices=["eager", "compiled", "projection", "walls", "reference"])
     parser.add_argument("--reference-tree", type=Path, help="checkout whose diffstir is the 'reference' variant")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=3)

@@ -11,10 +11,11 @@ The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` sec
 * the fluid's volume by its particles' J, Σ J V0, and its centre of mass's height, in the settled state and after
   the hold: at rest neither should change; and the seeded volume against the cup's fill volume;
 * the rod's reaction on the final state split by node layer above the tip (``diffstir.mpm.step``): the particles'
-  momentum with the pressure impulse (p2g), the gravity of the fluid mass on the rod's nodes, and the momentum the
-  ghost-velocity boundary condition gives that mass.
+  momentum with the pressure impulse (p2g; with ``--rod-pressure`` that of the rod's boundary particles too), the
+  gravity of the fluid mass on the rod's nodes, and the momentum the ghost-velocity boundary condition gives that
+  mass; with ``--rod-pressure`` also the boundary particles' impulse on all nodes, which the reaction takes off.
 
-    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2]
+    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2] [--rod-pressure]
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ import numpy as np
 import torch
 
 from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.mpm.step import grid_update, p2g
+from diffstir.mpm.boundaries import is_solid
+from diffstir.mpm.step import MASS_FLOOR, grid_update, p2g
+from diffstir.mpm.walls import wall_impulses
 from diffstir.rheology import Newtonian
 from diffstir.rig import Rig
 from diffstir.trajectory import stationary
@@ -42,13 +45,16 @@ def main() -> None:
     parser.add_argument("--dx", type=float, default=0.01, help="cell size [m]")
     parser.add_argument("--hold", type=float, default=0.02, help="time held at rest after settling [s]")
     parser.add_argument("--settle", type=float, default=0.2, help="settling time [s]")
+    parser.add_argument("--wall-pressure", action="store_true", help="boundary particles in the solids carry the "
+                        "fluid's pressure (SimConfig.wall_pressure)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, torch {torch.__version__}, "
-          f"dx = {args.dx} m, settle {args.settle} s, hold {args.hold} s")
+          f"dx = {args.dx} m, settle {args.settle} s, hold {args.hold} s, wall pressure {args.wall_pressure}")
     rig = Rig()
     rod, g = rig.rod, rig.gravity
-    cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle)
+    cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle, 
+                    wall_pressure=args.wall_pressure)
     sim = StirringSimulator(Newtonian(eta=0.2), rig, cfg, density=DENSITY)
     trajectory = stationary(args.hold)
     settled = sim.initial_state(trajectory)
@@ -90,10 +96,11 @@ def main() -> None:
     dt = result.dt
     state = result.state
     pose = sim._poses(trajectory, np.array([trajectory.t[-1] - dt, trajectory.t[-1]]))[0]
-    buffer, _ = p2g(sim.scene, state, dt)
-    update = grid_update(sim.scene, sim.material, buffer, pose, dt)
-    v_new, force = update.velocity, update.force
     scene, d = sim.scene, sim.scene.dim
+    buffer, stencil = p2g(scene, state, dt)
+    wall_push = None if scene.walls is None else wall_impulses(scene, state, stencil, pose, dt)
+    update = grid_update(scene, sim.material, buffer, pose, dt, wall_push=wall_push)
+    v_new, force = update.velocity, update.force
     window = scene.rod_window.nodes(scene.grid, pose.axis)
     nodes = scene.nodes[window]
     local = nodes - torch.cat([pose.axis, pose.tip.reshape(1)])
@@ -105,13 +112,35 @@ def main() -> None:
         parts[layer] += torch.tensor([float(buffer[window[i], 2]) / dt, float(mass[i]) * float(scene.gravity[2]),
                                       -float(mass[i] * v_new[window[i], 2].detach()) / dt], dtype=torch.float64)
     print(f"\nthe rod's vertical reaction on the final state {force[2].item():+.4f} N, by node layer above the tip:\n"
-          "| layer [cells] | momentum + pressure impulse / Δt [N] | gravity of the node mass [N] | "
+          "| layer [cells] | momentum + the fluid's pressure impulse / Δt [N] | gravity of the node mass [N] | "
           "− ghost momentum / Δt [N] |\n|---|---|---|---|")
     total = torch.zeros(3, dtype=torch.float64)
     for layer in sorted(parts):
         total += parts[layer]
         print(f"| {layer} | {parts[layer][0]:+.4f} | {parts[layer][1]:+.4f} | {parts[layer][2]:+.4f} |")
     print(f"| all | {total[0]:+.4f} | {total[1]:+.4f} | {total[2]:+.4f} |")
+    # who carries the fluid's weight: each solid's nodes hold the momentum their boundary condition takes from the
+    # fluid mass on them (the rod's reaction; shear stress left out, the fluid is at rest), and each solid's
+    # boundary particles push the fluid's nodes
+    node_mass = buffer[:, d]
+    has_mass = node_mass > MASS_FLOOR
+    cup = is_solid(scene.cup_phi, scene.grid.dx)
+    fluid = has_mass & ~cup & ~torch.zeros_like(cup).index_fill(0, window[inside], True)
+    v_free = torch.where(has_mass[:, None], buffer[:, :d] / node_mass.clamp_min(MASS_FLOOR)[:, None]
+                         + dt * scene.gravity, 0.0)
+    held = node_mass * (v_free[:, 2] - v_new[:, 2].detach()) / dt
+    bottom = cup & (scene.nodes[:, 2] < 0.5 * scene.grid.dx)
+    cup_particles = 0.0
+    if wall_push is not None:
+        rod_push, cup_push = wall_push
+        print(f"the rod's boundary particles push the fluid's nodes with {float(rod_push[fluid, 2].sum()) / dt:+.4f} N "
+              "(the rod's reaction counts it with the opposite sign)")
+        cup_particles = -float(cup_push[fluid, 2].sum()) / dt
+    weight = float(state.x.shape[0] * scene.particle_mass * rig.gravity)
+    print(f"the fluid's weight {weight:.4f} N is held by: the cup's bottom {float(held[bottom].sum()):+.4f} N, its "
+          f"wall {float(held[cup & ~bottom].sum()):+.4f} N, its boundary particles {cup_particles:+.4f} N, the rod "
+          f"{force[2].item():+.4f} N (they sum to {float(held[cup].sum()) + cup_particles + force[2].item():+.4f} N; "
+          f"at rest −{weight:.4f} N, the cup holding the weight and the buoyancy, −{weight + buoyancy:.4f} N)")
 
 
 if __name__ == "__main__":

@@ -9,8 +9,9 @@ Every 2-D check runs the fitting default (conf/sim/slice2d.yaml: 2.5 mm cells, a
 towards the grid's packing over 50 ms, the sound speed raised per rollout to 3 % compression from 1 m/s) and, for
 comparison, the numerics it replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own
 divergence, a fixed 1 m/s) and the default with an incompressible pressure ("projection", sim.pressure=projection,
-diffstir/mpm/projection.py); the stir check also the default at 1 % and 0.3 % compression. --numerics runs only
-the numerics whose labels start with the given words.
+diffstir/mpm/projection.py) and with boundary particles carrying the fluid's pressure into the solids ("wall
+pressure", sim.wall_pressure=true, diffstir/mpm/walls.py); the stir check also the default at 1 % and 0.3 %
+compression. --numerics runs only the numerics whose labels start with the given words.
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
   length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
 - power_law: the same with a power-law fluid, K = 1 Pa s^n, n = 0.6, Omega = 1 rad/s (Re = 0.6 at the rod), against
@@ -80,10 +81,11 @@ A, B = RIG.rod.radius, RIG.cup.radius
 DEFAULT = fitting_default()
 FORMER = DEFAULT.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
 PROJECTION = DEFAULT.replace(pressure="projection")
-CONFIGS = {"default": DEFAULT, "former": FORMER, "projection": PROJECTION}
+WALL_PRESSURE = DEFAULT.replace(wall_pressure=True)
+CONFIGS = {"default": DEFAULT, "former": FORMER, "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
 STIR_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
                 "default at 0.3 %": DEFAULT.replace(compressibility=0.003), "former": FORMER,
-                "projection": PROJECTION}
+                "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
 STIR_SOUND_SPEEDS = {f"default, c = {c:g} m/s": DEFAULT.replace(compressibility=None, sound_speed=c)
                      for c in (2.0, 4.0, 8.0, 16.0)}  # m/s
 STIR_VISCOSITIES = (0.05, 0.2, 1.0, 3.0)  # Pa s

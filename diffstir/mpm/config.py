@@ -46,6 +46,10 @@ class SimConfig:
             (``diffstir.mpm.projection``), so no sound speed limits the step (the flow's Courant number,
             ``cfl * dx / max rod speed``, does) and none compresses the fluid. ``volume_relaxation`` is then the
             time over which the cells' fill relaxes back to one. 2-D only for now.
+        wall_pressure: boundary particles in the cup's walls and bottom and in the rod carry the fluid's pressure
+            into the particle-to-grid transfer (``diffstir.mpm.walls``), so that the fluid next to a solid face is
+            not left at a fraction of its pressure. Off by default: validated at rest in 3-D only
+            (docs/validation.md).
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
@@ -71,6 +75,7 @@ class SimConfig:
     flip: float = 0.95
     volume_relaxation: float = 0.05
     pressure: Literal["compressible", "projection"] = "compressible"
+    wall_pressure: bool = False
     dt_max: float = 1e-3
     dt: float | None = None
     headroom: float = 0.02
@@ -105,6 +110,9 @@ class SimConfig:
         if self.pressure == "projection" and self.dim == 3:
             raise ValueError("sim.pressure = 'projection' is built and validated for the 2-D slice only (a closed "
                              "domain, no free surface; docs/validation.md); use sim.pressure=compressible in 3-D")
+        if self.wall_pressure and self.pressure == "projection":
+            raise ValueError("sim.wall_pressure = true continues the particles' pressure into the solids; with "
+                             "sim.pressure = 'projection' the particles carry none: set one of them back")
         if self.compressibility is not None and not 0 < self.compressibility < 0.5:
             raise ValueError(f"sim.compressibility = {self.compressibility!r}; expected a relative density change "
                              "between 0 and 0.5 (e.g. 0.01), or null to keep sim.sound_speed")
@@ -132,7 +140,10 @@ class SimConfig:
         return {k: getattr(self, k) for k in NUMERICS}
 
 
-#: The settings of ``SimConfig.numerics``; records written before 2026-11-24 lack the last three, and had then the
-#: values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound speed).
-NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure")
-FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible"}
+#: The settings of ``SimConfig.numerics``; records written before 2026-11-24 lack the last four (before 2026-11-25
+#: the last), and had then the values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound
+#: speed, no boundary particles).
+NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure",
+            "wall_pressure")
+FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible",
+                   "wall_pressure": False}

@@ -22,6 +22,7 @@ from .projection import CellMatrices
 from .state import State
 from .step import Scene, step
 from .viscous import CellStencil
+from .walls import WallParticles
 
 PADDING = 3  # cells of grid beyond the cup on every side: the ghost band and the stencil's reach
 
@@ -61,6 +62,7 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     bounds = torch.stack([grid.origin + 0.5001 * dx, highest])
     offset_index = offsets @ grid.strides()
     rod_spacing = spacing / FINE
+    rod_height = rig.rod.immersion_depth + config.headroom + 2 * dx  # m above its tip that its particles fill
     cells = CellStencil.of(grid)
     return Scene(
         grid=grid, offset_index=offset_index,
@@ -77,11 +79,12 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
         gravity=gravity, viscosity_cap=config.viscosity_cap,
         flip=config.flip, relaxation_rate=1.0 / config.volume_relaxation if config.volume_relaxation > 0 else 0.0,
         solid_mass=cup_solid_mass(grid, cup, spacing, density, offset_index, grid.strides(), bounds),
-        rod_points=rod_fill_points(rod, dx, rod_spacing, rig.rod.immersion_depth + config.headroom + 2 * dx, d,
-                                   dtype, device),
+        rod_points=rod_fill_points(rod, dx, rod_spacing, rod_height, d, dtype, device),
         rod_point_mass=density * rod_spacing ** d,
         cell_matrices=(CellMatrices.of(cells, grid.num_nodes) if config.pressure == "projection"
                        else None),
+        walls=(WallParticles.of(grid, cup, rod, spacing, rod_height, offset_index, bounds) if config.wall_pressure
+               else None),
     )
 
 
@@ -144,10 +147,14 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
     still = RodPose(axis=pose.axis, tip=pose.tip, angle=pose.angle, velocity=torch.zeros_like(pose.velocity),
                     angular_velocity=torch.zeros_like(pose.angular_velocity))
     with torch.no_grad():
-        for _ in range(int(math.ceil(config.settle_time / dt))):
+        for k in range(int(math.ceil(config.settle_time / dt))):
             state, _, _ = step(scene, fluid, state, still, dt)
             state.v = state.v * damping
             state.C = state.C * damping
+            if not (torch.isfinite(state.x).all() and torch.isfinite(state.J).all()):  # and nothing is cached
+                raise FloatingPointError(f"the fluid became non-finite while settling, at step {k} of dt = {dt:.3g} "
+                                         f"s (sim.dx = {config.dx} m, sim.sound_speed = {config.sound_speed} m/s, "
+                                         f"sim.cfl = {config.cfl}); try a smaller sim.cfl")
     settled = State(x=state.x, v=torch.zeros_like(state.v), C=torch.zeros_like(state.C), J=state.J)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
@@ -160,6 +167,8 @@ def _settle_key(rig: Rig, config: SimConfig, density: float, pose: RodPose) -> s
     fields = {k: v for k, v in asdict(config).items() if k in ("dim", "dx", "particles_per_cell", "sound_speed", "cfl",
                                                                  "headroom", "settle_time", "dtype", "flip",
                                                                  "volume_relaxation")}
+    if config.wall_pressure:  # keyed only when on, so that the caches of the states settled without it stay valid
+        fields["wall_pressure"] = True
     payload = json.dumps({"rig": asdict(rig), "sim": fields, "density": density, "version": 2,
                           "pose": [round(float(v), 9) for v in (*pose.axis.tolist(), pose.tip, pose.angle)]},
                          sort_keys=True, default=str)

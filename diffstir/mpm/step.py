@@ -23,6 +23,7 @@ from .packing import SURFACE_FILL, deposit, packed_volume_ratio, place_rod_point
 from .projection import CellMatrices, Projection, divergence, divergence_transpose, solve_pressure
 from .state import State
 from .viscous import CellStencil, cell_any, cell_mean, cell_min, cell_velocity_gradient, nodal_forces
+from .walls import WallParticles, wall_impulses
 
 MASS_FLOOR = 1e-12  # kg: nodes lighter than this carry no fluid
 
@@ -64,6 +65,8 @@ class Scene:
         cell_matrices: with an incompressible pressure, the grid's cell operators as sparse matrices
             (``projection.CellMatrices``): the pressure keeps the grid's velocity divergence-free instead of
             following the particles' compression (``bulk_modulus`` is then 0); None: a compressible fluid.
+        walls: boundary particles in the solids that carry the fluid's pressure (``walls.WallParticles``); None:
+            the solids' nodes see the fluid's pressure only.
     """
 
     grid: Grid
@@ -94,6 +97,7 @@ class Scene:
     rod_point_mass: float
     rod_slip_length: float | Tensor = 0.0
     cell_matrices: CellMatrices | None = None
+    walls: WallParticles | None = None
 
     @property
     def dim(self) -> int:
@@ -176,19 +180,29 @@ class GridUpdate(NamedTuple):
 
 
 def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
-                material_state: Tensor | None = None, packing: Tensor | None = None) -> GridUpdate:
+                material_state: Tensor | None = None, packing: Tensor | None = None,
+                wall_push: tuple[Tensor, Tensor] | None = None) -> GridUpdate:
     """Node velocities after gravity, the shear stress, the pressure (with ``scene.incompressible``, which needs the
     nodes' fill ``packing``, ``node_fill``) and the cup's and rod's boundary conditions, with the fluid's force and
     torque on the rod.
 
     With a ``material_state`` (``State.material``), the material is called as
     ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state.
+    ``wall_push``: the pressure impulses [N·s] of the rod's and of the cup's boundary particles on the nodes
+    (``walls.wall_impulses``). The cup's go to the fluid's nodes; the rod's to the fluid's and to the rod's own,
+    where its reaction returns them, so that the rod's force counts its push on the fluid with the opposite sign.
     """
     grid, d = scene.grid, scene.dim
     mass, momentum = buffer[:, d], buffer[:, :d]
     has_mass = mass > MASS_FLOOR
-    v = torch.where(has_mass[:, None], momentum / mass.clamp_min(MASS_FLOOR)[:, None] + dt * scene.gravity, 0.0)
     solid, window, in_rod, cup_ghosts, rod_ghosts = boundary_operators(scene, has_mass, pose)
+    rod_push = None
+    if wall_push is not None:
+        rod_push, cup_push = wall_push
+        rod_node = torch.zeros_like(solid).index_copy(0, window, in_rod)
+        rod_push = torch.where((has_mass & (rod_node | ~solid))[:, None], rod_push, 0.0)
+        momentum = momentum + rod_push + torch.where((has_mass & ~solid)[:, None], cup_push, 0.0)
+    v = torch.where(has_mass[:, None], momentum / mass.clamp_min(MASS_FLOOR)[:, None] + dt * scene.gravity, 0.0)
 
     # shear stress from the ghost-extended velocity field; a cell counts where it holds fluid: its emptiest corner
     # sets its volume, solid corners count as full, and cells wholly inside solids are left out
@@ -218,6 +232,11 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     force = on_rod.sum(0)
     arm = scene.nodes[window, :2] - pose.axis
     torque = (arm[:, 0] * on_rod[:, 1] - arm[:, 1] * on_rod[:, 0]).sum()
+    if rod_push is not None:  # its boundary particles' push on the fluid's nodes is the rod's on the fluid
+        push = rod_push / dt
+        arm = scene.nodes[:, :2] - pose.axis
+        force = force - push.sum(0)
+        torque = torque - (arm[:, 0] * push[:, 1] - arm[:, 1] * push[:, 0]).sum()
     return GridUpdate(v_new, force, torque, material_state)
 
 
@@ -287,7 +306,8 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     buffer, st = p2g(scene, state, dt)
     d, mass = scene.dim, buffer[:, scene.dim]
     fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 or scene.incompressible else None
-    grid = grid_update(scene, material, buffer, pose, dt, state.material, fill)
+    wall_push = None if scene.walls is None else wall_impulses(scene, state, st, pose, dt)
+    grid = grid_update(scene, material, buffer, pose, dt, state.material, fill, wall_push)
     v_before = None
     if scene.flip > 0:
         v_before = torch.where((mass > MASS_FLOOR)[:, None], buffer[:, d + 1:] / mass.clamp_min(MASS_FLOOR)[:, None],
