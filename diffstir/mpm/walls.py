@@ -57,17 +57,16 @@ class Stencils:
     lever: Tensor
 
     @classmethod
-    def of(cls, scene_grid: Grid, points: Tensor, phi: Tensor, normal: Tensor, offset_index: Tensor,
+    def of(cls, grid: Grid, points: Tensor, phi: Tensor, normal: Tensor, offsets: Tensor, offset_index: Tensor,
            strides: Tensor, bounds: Tensor) -> "Stencils":
         """The stencils of boundary particles at ``points`` [m] of signed distance ``phi`` [m] and unit normal into
-        the fluid ``normal``, their probes ``PROBE_DISTANCE`` cells outside the surface; positions are clamped to the
-        particles' ``bounds`` (2, d) [m]."""
-        d = scene_grid.dim
-        probes = points + (PROBE_DISTANCE * scene_grid.dx - phi)[:, None] * normal
-        at_probe = quadratic_stencil(scene_grid, torch.clamp(probes, bounds[0], bounds[1]), offset_index, strides)
-        at_wall = quadratic_stencil(scene_grid, torch.clamp(points, bounds[0], bounds[1]), offset_index, strides)
-        offsets = scene_grid.stencil_offsets().to(points.dtype)
-        push = at_wall.weight[:, :, None] * (offsets[None, :, :d] - at_wall.frac[:, None, :])
+        the fluid ``normal``, their probes ``PROBE_DISTANCE`` cells outside the surface, on ``grid`` (its stencil's
+        node ``offsets`` in cells (3^d, d), their flat ``offset_index`` and the flat ``strides``); positions are
+        clamped to the particles' ``bounds`` (2, d) [m]."""
+        probes = points + (PROBE_DISTANCE * grid.dx - phi)[:, None] * normal
+        at_probe = quadratic_stencil(grid, torch.clamp(probes, bounds[0], bounds[1]), offset_index, strides)
+        at_wall = quadratic_stencil(grid, torch.clamp(points, bounds[0], bounds[1]), offset_index, strides)
+        push = at_wall.weight[:, :, None] * (offsets[None] - at_wall.frac[:, None, :])
         return cls(at_probe.index, at_probe.weight, at_wall.index, push, points - probes)
 
 
@@ -88,14 +87,15 @@ class WallParticles:
         points = lattice(grid, spacing)
         phi, normal = cup_sdf(cup, points)
         keep = (phi <= 0) & (phi > -DEPTH * grid.dx) & ((points >= bounds[0]) & (points <= bounds[1])).all(1)
+        offsets = grid.stencil_offsets().to(points.dtype)
         return cls(rod=rod_fill_points(rod, grid.dx, spacing, rod_height, grid.dim, points.dtype, points.device),
-                   cup=Stencils.of(grid, points[keep], phi[keep], normal[keep], offset_index, grid.flat_strides,
-                                   bounds))
+                   cup=Stencils.of(grid, points[keep], phi[keep], normal[keep], offsets, offset_index,
+                                   grid.flat_strides, bounds))
 
 
 def fluid_state(scene: "Scene", state: State, st: Stencil) -> Tensor:
-    """Σ_p w_ip m_p (p_p, J_p) on each node: the particles' pressure p = −τ_v(J) [Pa] and volume ratio J [1]
-    weighted by the mass they put there [kg·Pa, kg] (2-D: per unit length), (num_nodes, 3): with the mass."""
+    """Σ_p w_ip m_p (p_p, J_p, 1) on each node: the particles' pressure p = −τ_v(J) [Pa] and volume ratio J [1]
+    weighted by the mass they put there, and that mass [kg·Pa, kg, kg] (2-D: per unit length), (num_nodes, 3)."""
     values = torch.stack([-volumetric_stress(state.J, scene.bulk_modulus), state.J, torch.ones_like(state.J)], 1)
     weighted = scene.particle_mass * values[:, None, :] * st.weight[:, :, None]  # (N, 3^d, 3)
     return torch.zeros(scene.grid.num_nodes, 3, dtype=state.x.dtype, device=state.x.device).index_add(
@@ -114,7 +114,7 @@ def pressure_impulse(scene: "Scene", weighted: Tensor, stencils: Stencils, dt: f
     in_fluid = at_probe[:, 2] > SURFACE_FILL * scene.node_mass
     density = scene.node_mass / grid.dx**d
     p_wall = torch.where(in_fluid, pressure + density * (stencils.lever @ scene.gravity), 0.0).clamp_min(0.0)
-    scale = (4.0 * dt / grid.dx) * scene.particle_volume * J * p_wall  # [N·s/m]: times w (x_i − x_b) / dx
+    scale = (4.0 * dt / grid.dx) * scene.particle_volume * J * p_wall  # [N·s], times w_ib (x_i − x_b) / dx
     contrib = (scale[:, None, None] * stencils.push).permute(2, 0, 1).reshape(d, -1)  # component-major
     index = stencils.index.view(1, -1).expand(d, -1)
     return torch.zeros(d, grid.num_nodes, dtype=weighted.dtype, device=weighted.device).scatter_add(
@@ -126,6 +126,6 @@ def wall_impulses(scene: "Scene", state: State, st: Stencil, pose: RodPose, dt: 
     nodes, each (num_nodes, d), for particles of stencil ``st``, the rod at ``pose`` (module docstring)."""
     weighted = fluid_state(scene, state, st)
     points = place_rod_points(scene.rod, scene.walls.rod, pose)
-    rod = Stencils.of(scene.grid, points, *rod_sdf(scene.rod, points, pose), scene.offset_index, scene.strides,
-                      scene.particle_bounds)
+    rod = Stencils.of(scene.grid, points, *rod_sdf(scene.rod, points, pose), scene.stencil_points[:, :scene.dim],
+                      scene.offset_index, scene.strides, scene.particle_bounds)
     return pressure_impulse(scene, weighted, rod, dt), pressure_impulse(scene, weighted, scene.walls.cup, dt)
