@@ -48,8 +48,9 @@ class SimConfig:
             time over which the cells' fill relaxes back to one. 2-D only for now.
         wall_pressure: boundary particles in the cup's walls and bottom and in the rod carry the fluid's pressure
             into the particle-to-grid transfer (``diffstir.mpm.walls``), so that the fluid next to a solid face is
-            not left at a fraction of its pressure. Off by default: validated at rest in 3-D only
-            (docs/validation.md).
+            not left at a fraction of its pressure. Off by default: it makes the 3-D fluid at rest hydrostatic and
+            the rod's buoyancy converge at second order in dx, leaves the 2-D viscous checks unchanged, but reads
+            the 2-D rod's force in a pressure gradient 4 % low and costs 1.3-2.2x a step (docs/validation.md).
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
