@@ -11,11 +11,13 @@ The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` sec
 * the fluid's volume by its particles' J, Σ J V0, and its centre of mass's height, in the settled state and after
   the hold: at rest neither should change; and the seeded volume against the cup's fill volume;
 * the rod's reaction on the final state split by node layer above the tip (``diffstir.mpm.step``): the particles'
-  momentum with the pressure impulse (p2g; with ``--rod-pressure`` that of the rod's boundary particles too), the
-  gravity of the fluid mass on the rod's nodes, and the momentum the ghost-velocity boundary condition gives that
-  mass; with ``--rod-pressure`` also the boundary particles' impulse on all nodes, which the reaction takes off.
+  momentum with the fluid's pressure impulse (p2g), the gravity of the fluid mass on the rod's nodes, and the
+  momentum the ghost-velocity boundary condition gives that mass; with ``--wall-pressure`` also the rod's boundary
+  particles' push on the fluid's nodes, which its reaction counts with the opposite sign;
+* who holds the fluid's weight: the cup's bottom and wall (the momentum their boundary condition takes from the
+  fluid mass on their nodes), with ``--wall-pressure`` the cup's boundary particles, and the rod.
 
-    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2] [--rod-pressure]
+    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2] [--wall-pressure]
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ def main() -> None:
           f"dx = {args.dx} m, settle {args.settle} s, hold {args.hold} s, wall pressure {args.wall_pressure}")
     rig = Rig()
     rod, g = rig.rod, rig.gravity
-    cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle, 
+    cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle,
                     wall_pressure=args.wall_pressure)
     sim = StirringSimulator(Newtonian(eta=0.2), rig, cfg, density=DENSITY)
     trajectory = stationary(args.hold)
@@ -98,7 +100,7 @@ def main() -> None:
     pose = sim._poses(trajectory, np.array([trajectory.t[-1] - dt, trajectory.t[-1]]))[0]
     scene, d = sim.scene, sim.scene.dim
     buffer, stencil = p2g(scene, state, dt)
-    wall_push = None if scene.walls is None else wall_impulses(scene, state, stencil, pose, dt)
+    wall_push = None if scene.walls is None else wall_impulses(scene, state, stencil, buffer[:, d], pose, dt)
     update = grid_update(scene, sim.material, buffer, pose, dt, wall_push=wall_push)
     v_new, force = update.velocity, update.force
     window = scene.rod_window.nodes(scene.grid, pose.axis)

@@ -33,7 +33,7 @@ def compressed_slice():
 
 def test_boundary_particles_impulses_sum_to_zero_over_the_nodes(compressed_slice):
     sim, state, pose, buffer, stencil = compressed_slice
-    rod, cup = wall_impulses(sim.scene, state, stencil, pose, DT)
+    rod, cup = wall_impulses(sim.scene, state, stencil, buffer[:, 2], pose, DT)
     scale = DT * -volumetric_stress(torch.tensor(J), sim.scene.bulk_modulus).item() * sim.scene.grid.dx  # [N·s/m]
     assert cup.abs().max() > 0.1 * scale and rod.abs().max() > 0.1 * scale  # they push
     torch.testing.assert_close(cup.sum(0), torch.zeros(2, dtype=cup.dtype), atol=1e-12 * scale * len(cup), rtol=0)
@@ -45,7 +45,7 @@ def test_the_cups_boundary_particles_complete_the_stencil_of_a_uniform_pressure(
     # to it are pushed off it, unless particles in the wall on the fluid's lattice carry the same pressure
     sim, state, pose, buffer, stencil = compressed_slice
     scene = sim.scene
-    rod, cup = wall_impulses(scene, state, stencil, pose, DT)
+    rod, cup = wall_impulses(scene, state, stencil, buffer[:, 2], pose, DT)
     fluid = (buffer[:, 2] > MASS_FLOOR) & ~is_solid(scene.cup_phi, scene.grid.dx)
     fluid &= rod_sdf(scene.rod, scene.nodes, pose)[0] > 3 * scene.grid.dx  # the rod's lattice is not the fluid's
     particles = buffer[fluid, :2]

@@ -306,7 +306,7 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     buffer, st = p2g(scene, state, dt)
     d, mass = scene.dim, buffer[:, scene.dim]
     fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 or scene.incompressible else None
-    wall_push = None if scene.walls is None else wall_impulses(scene, state, st, pose, dt)
+    wall_push = None if scene.walls is None else wall_impulses(scene, state, st, mass, pose, dt)
     grid = grid_update(scene, material, buffer, pose, dt, state.material, fill, wall_push)
     v_before = None
     if scene.flip > 0:

@@ -93,13 +93,14 @@ class WallParticles:
                                    grid.flat_strides, bounds))
 
 
-def fluid_state(scene: "Scene", state: State, st: Stencil) -> Tensor:
+def fluid_state(scene: "Scene", state: State, st: Stencil, mass: Tensor) -> Tensor:
     """Σ_p w_ip m_p (p_p, J_p, 1) on each node: the particles' pressure p = −τ_v(J) [Pa] and volume ratio J [1]
-    weighted by the mass they put there, and that mass [kg·Pa, kg, kg] (2-D: per unit length), (num_nodes, 3)."""
-    values = torch.stack([-volumetric_stress(state.J, scene.bulk_modulus), state.J, torch.ones_like(state.J)], 1)
-    weighted = scene.particle_mass * values[:, None, :] * st.weight[:, :, None]  # (N, 3^d, 3)
-    return torch.zeros(scene.grid.num_nodes, 3, dtype=state.x.dtype, device=state.x.device).index_add(
-        0, st.index.view(-1), weighted.reshape(-1, 3))
+    weighted by the mass they put there, and that mass ``mass`` [kg] (p2g's) (2-D: per unit length),
+    (num_nodes, 3)."""
+    values = torch.stack([-volumetric_stress(state.J, scene.bulk_modulus), state.J], 1)
+    weighted = scene.particle_mass * values[:, None, :] * st.weight[:, :, None]  # (N, 3^d, 2)
+    return torch.cat([torch.zeros(scene.grid.num_nodes, 2, dtype=state.x.dtype, device=state.x.device).index_add(
+        0, st.index.view(-1), weighted.reshape(-1, 2)), mass[:, None]], 1)
 
 
 def pressure_impulse(scene: "Scene", weighted: Tensor, stencils: Stencils, dt: float) -> Tensor:
@@ -121,10 +122,12 @@ def pressure_impulse(scene: "Scene", weighted: Tensor, stencils: Stencils, dt: f
         1, index, contrib).T
 
 
-def wall_impulses(scene: "Scene", state: State, st: Stencil, pose: RodPose, dt: float) -> tuple[Tensor, Tensor]:
+def wall_impulses(scene: "Scene", state: State, st: Stencil, mass: Tensor, pose: RodPose,
+                  dt: float) -> tuple[Tensor, Tensor]:
     """The pressure impulses [N·s] (2-D: per unit length) of the rod's and of the cup's boundary particles on the
-    nodes, each (num_nodes, d), for particles of stencil ``st``, the rod at ``pose`` (module docstring)."""
-    weighted = fluid_state(scene, state, st)
+    nodes, each (num_nodes, d), for particles of stencil ``st`` that put ``mass`` [kg] on the nodes (p2g's), the rod
+    at ``pose`` (module docstring)."""
+    weighted = fluid_state(scene, state, st, mass)
     points = place_rod_points(scene.rod, scene.walls.rod, pose)
     rod = Stencils.of(scene.grid, points, *rod_sdf(scene.rod, points, pose), scene.stencil_points[:, :scene.dim],
                       scene.offset_index, scene.strides, scene.particle_bounds)
