@@ -3,6 +3,7 @@
     python scripts/benchmark_simulator.py [--scenes paper3d slice2d] [--steps 100] [--threads 1]
                                           [--variants eager compiled] [--reference-tree DIR] [--repeats 3]
     python scripts/benchmark_simulator.py --gradient-steps 8000 [--scenes paper3d]
+    python scripts/benchmark_simulator.py --profile --scenes paper3d --variants compiled [--steps 50]
 
 Every variant of a scene runs in this one process, interleaved (variant A, B, A, B, ...), and the table gives each
 variant's time as a ratio to the first variant (the reference, the eager step by default): on a shared machine the
@@ -25,6 +26,9 @@ set size (Linux ru_maxrss) over the whole run.
 
 ``--gradient-steps N`` measures memory directly instead: for each scene (eager, its configured checkpointing), the
 growth of the process's peak resident set size over one N-step gradient of mean |F|, after a 50-step warm-up.
+
+``--profile`` prints, for each scene and variant, where a warm forward rollout spends its time: ``torch.profiler``'s
+operators by self time, and for a compiled variant inductor's generated kernels (``cpp.enable_kernel_profile``).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ import time
 from pathlib import Path
 
 import torch
+import torch._inductor.config
 
 SCENES = {  # slice2d and fine3d with the default numerics (FLIP share, packing relaxation), paper3d with the paper's
     "paper3d": dict(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45, dt=1e-3, settle_time=0.3, flip=0.0,
@@ -117,6 +122,24 @@ def saved_bytes(sim, trajectory, initial) -> tuple[float, float]:
     return sum(storages.values()) / steps, state
 
 
+def profile(variant: str, scene: str, reference, steps: int) -> None:
+    """Print the operators (and a compiled variant's kernels) of one warm forward rollout of ``steps`` steps by self
+    time."""
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    torch._inductor.config.cpp.enable_kernel_profile = True  # compiled kernels appear by name
+    sim, circle_fn = build(variant, scene, reference)
+    dt = sim.time_step(circle_fn(0.015, 0.1, 1.0, ramp_time=0.2))
+    trajectory = circle_fn(0.015, 0.1, steps * dt, ramp_time=0.2)
+    initial = sim.initial_state(trajectory)
+    rollout(sim, trajectory, initial, False)  # warm-up and compilation
+    with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
+        seconds = rollout(sim, trajectory, initial, False)
+    print(f"{scene}, {variant}: {1e3 * seconds / steps:.2f} ms/step under the profiler, {steps} steps")
+    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=12, max_name_column_width=90))
+
+
 def gradient_memory(scene: str, steps: int) -> None:
     """Print the growth of peak RSS [MiB] over one ``steps``-step gradient of the ``eager`` variant of ``scene``."""
     sim, circle_fn = build("eager", scene, None)
@@ -141,11 +164,17 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gradient-steps", type=int, help="measure the peak memory of one gradient this long")
+    parser.add_argument("--profile", action="store_true", help="print where a forward rollout spends its time")
     args = parser.parse_args()
     if "reference" in args.variants and args.reference_tree is None:
         parser.error("the 'reference' variant needs --reference-tree DIR")
     reference = import_reference(args.reference_tree) if args.reference_tree else None
     torch.set_num_threads(args.threads)
+    if args.profile:
+        for scene in args.scenes:
+            for variant in args.variants:
+                profile(variant, scene, reference, args.steps)
+        return
     if args.gradient_steps:
         print(f"{datetime.date.today()}, torch {torch.__version__}, {args.threads} thread(s), float32, eager")
         print("| scene | steps | checkpoint segment | peak RSS before [MiB] | after [MiB] | growth [MiB] | wall [s] |")
