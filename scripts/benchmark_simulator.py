@@ -9,8 +9,12 @@ Every variant of a scene runs in this one process, interleaved (variant A, B, A,
 variant's time as a ratio to the first variant (the reference, the eager step by default): on a shared machine the
 absolute ms move with the other jobs, the ratios much less. Variants:
 
-- ``eager``: the simulator as configured, ``SimConfig.compile = False``.
-- ``compiled``: ``SimConfig.compile = True`` (compiled once in an untimed warm-up run).
+- ``eager``: the simulator as configured, ``SimConfig.compile = False`` (on the CPU the transfers run as the fused
+  C++ kernels, ``SimConfig.kernels = "auto"``).
+- ``unfused``: eager with the transfers as torch ops, ``SimConfig.kernels = "torch"``.
+- ``compiled``: ``SimConfig.compile = True`` (compiled once in an untimed warm-up run), the fused transfers called
+  from the compiled graph.
+- ``compiled-unfused``: compiled with the transfers as torch ops, which inductor fuses with the rest of the step.
 - ``projection``: ``SimConfig.pressure = "projection"`` (2-D scenes only), the incompressible pressure; its time
   step is longer (no acoustic limit), so compare the cost per simulated second from the dt column too.
 - ``walls``: ``SimConfig.wall_pressure = True``, boundary particles in the solids carrying the fluid's pressure.
@@ -57,6 +61,7 @@ SCENES = {  # slice2d and fine3d with the default numerics (FLIP share, packing 
     "fine3d": dict(dim=3, dx=0.005, sound_speed=10.0, settle_time=0.3),
     "slice2d": dict(dim=2, dx=0.0025, sound_speed=1.0),
 }
+VARIANTS = ["eager", "unfused", "compiled", "compiled-unfused", "projection", "walls", "reference"]
 HORIZON = 8000  # steps: the paper's 8 s recording at 1 ms
 
 
@@ -79,12 +84,16 @@ def build(variant: str, scene: str, reference) -> tuple:
         "rig": importlib.import_module("diffstir.rig"), "trajectory": importlib.import_module("diffstir.trajectory")}
     known = {f.name for f in dataclasses.fields(modules["mpm"].SimConfig)}  # an older checkout lacks newer settings
     settings = {k: v for k, v in SCENES[scene].items() if k in known}
-    if variant == "compiled":
+    if variant in ("compiled", "compiled-unfused"):
         settings["compile"] = True
+    if variant == "compiled-unfused":
+        settings["kernels"] = "torch"
     if variant == "projection":
         settings["pressure"] = "projection"
     if variant == "walls":
         settings["wall_pressure"] = True
+    if variant == "unfused":
+        settings["kernels"] = "torch"
     law = modules["rheology"].Carreau(eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
     sim = modules["mpm"].StirringSimulator(law, modules["rig"].Rig(), modules["mpm"].SimConfig(**settings),
                                            density=1000.0)
@@ -158,8 +167,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--scenes", nargs="+", default=["paper3d", "slice2d"], choices=list(SCENES))
-    parser.add_argument("--variants", nargs="+", default=["eager", "compiled"],
-                        choices=["eager", "compiled", "projection", "walls", "reference"])
+    parser.add_argument("--variants", nargs="+", default=["eager", "compiled"], choices=VARIANTS)
     parser.add_argument("--reference-tree", type=Path, help="checkout whose diffstir is the 'reference' variant")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=3)

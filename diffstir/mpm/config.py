@@ -63,6 +63,10 @@ class SimConfig:
             than eager on the paper's 3-D scene and 2.3-2.9x on the 2-D default, forward and forward + backward,
             on the 2-core CPU (docs/benchmarks.md); worth it for long rollouts and repeated fits of one scene, not
             for a one-off short simulation.
+        kernels: how the particle-grid transfers run (``diffstir.mpm.transfer``): ``"fused"``, C++ kernels for the
+            CPU, compiled on first use (about 20 s, then cached; needs a C++ compiler and ninja); ``"torch"``,
+            torch tensor ops (any device); ``"auto"``, fused on the CPU without ``compile`` where they build, torch
+            ops otherwise (on CUDA, under ``compile``, where no compiler is found). Same results to rounding.
     """
 
     dim: Literal[2, 3] = 3
@@ -85,6 +89,7 @@ class SimConfig:
     dtype: Literal["float32", "float64"] = "float32"
     device: str = "cpu"
     compile: bool = False
+    kernels: Literal["auto", "fused", "torch"] = "auto"
 
     def __post_init__(self) -> None:
         if self.dim not in (2, 3):
@@ -117,6 +122,10 @@ class SimConfig:
         if self.compressibility is not None and not 0 < self.compressibility < 0.5:
             raise ValueError(f"sim.compressibility = {self.compressibility!r}; expected a relative density change "
                              "between 0 and 0.5 (e.g. 0.01), or null to keep sim.sound_speed")
+        if self.kernels not in ("auto", "fused", "torch"):
+            raise ValueError(f"sim.kernels = {self.kernels!r}; expected 'auto', 'fused' or 'torch'")
+        if self.kernels == "fused" and torch.device(self.device).type != "cpu":
+            raise ValueError("sim.kernels = 'fused' runs on the CPU; use sim.kernels=auto or torch")
         if self.checkpoint_every < 0:
             raise ValueError(f"sim.checkpoint_every = {self.checkpoint_every}; expected >= 0")
 

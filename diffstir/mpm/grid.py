@@ -83,13 +83,26 @@ class Stencil:
 
     Attributes:
         index: flat node index of each (particle, stencil node), (N, 3^d) int64.
-        weight: B-spline weight w_ip [1], (N, 3^d); rows sum to 1.
         frac: particle position relative to its base node, in cells, in [0.5, 1.5), (N, d).
+        weight: B-spline weight w_ip [1], (N, 3^d), rows summing to 1; None until ``weights()`` computes it (the
+            fused transfers compute their own).
     """
 
     index: Tensor
-    weight: Tensor
     frac: Tensor
+    weight: Tensor | None = None
+
+    def weights(self) -> Tensor:
+        """w_ip [1], (N, 3^d): ``weight``, computed from ``frac`` where it was not."""
+        if self.weight is None:
+            self.weight = outer_weights(bspline_weights(self.frac))
+        return self.weight
+
+
+def bspline_weights(frac: Tensor) -> Tensor:
+    """Per-axis quadratic B-spline weights N(x) = 3/4 - x², (3/2 - |x|)²/2 of the three stencil nodes of points at
+    ``frac`` cells from their base node, (N, d) → (N, d, 3)."""
+    return torch.stack([0.5 * (1.5 - frac) ** 2, 0.75 - (frac - 1.0) ** 2, 0.5 * (frac - 0.5) ** 2], dim=-1)
 
 
 def outer_weights(w1d: Tensor) -> Tensor:
@@ -102,8 +115,9 @@ def outer_weights(w1d: Tensor) -> Tensor:
     return weight
 
 
-def quadratic_stencil(grid: Grid, x: Tensor, offset_index: Tensor, strides: Tensor) -> Stencil:
-    """Quadratic B-spline weights N(x) = 3/4 - x², (3/2 - |x|)²/2 of particles at ``x`` [m], (N, d).
+def quadratic_stencil(grid: Grid, x: Tensor, offset_index: Tensor, strides: Tensor, weights: bool = True) -> Stencil:
+    """The quadratic B-spline stencil of particles at ``x`` [m], (N, d), with its weights unless ``weights`` is
+    False.
 
     ``offset_index`` is the flat index offset of each stencil node from the base node, (3^d,) int64
     (``stencil_offsets() @ strides``); ``strides`` the grid's flat-index strides.
@@ -111,6 +125,5 @@ def quadratic_stencil(grid: Grid, x: Tensor, offset_index: Tensor, strides: Tens
     cell = (x - grid.origin) / grid.dx
     base = torch.floor(cell - 0.5).detach()
     frac = cell - base
-    w1d = torch.stack([0.5 * (1.5 - frac) ** 2, 0.75 - (frac - 1.0) ** 2, 0.5 * (frac - 0.5) ** 2], dim=-1)  # (N,d,3)
     index = (base.long() @ strides)[:, None] + offset_index[None, :]
-    return Stencil(index=index, weight=outer_weights(w1d), frac=frac)
+    return Stencil(index=index, frac=frac, weight=outer_weights(bspline_weights(frac)) if weights else None)

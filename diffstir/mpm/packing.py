@@ -52,7 +52,7 @@ def deposit(grid: Grid, points: Tensor, mass: float, offset_index: Tensor, strid
     from the fluid)."""
     st = quadratic_stencil(grid, torch.clamp(points, bounds[0], bounds[1]), offset_index, strides)
     return torch.zeros(grid.num_nodes, dtype=points.dtype, device=points.device).scatter_add(
-        0, st.index.view(-1), (mass * st.weight).view(-1))
+        0, st.index.view(-1), (mass * st.weights()).view(-1))
 
 
 def cup_solid_mass(grid: Grid, cup: Cup, spacing: float, density: float, offset_index: Tensor, strides: Tensor,
@@ -94,4 +94,4 @@ def packed_volume_ratio(fill: Tensor, st: Stencil) -> tuple[Tensor, Tensor]:
     off smoothly at a surface (a hard switch made the readings jump with the parameters)."""
     node_fill = fill[st.index]
     inside = ((node_fill.min(1).values - SURFACE_FILL) / (1.0 - SURFACE_FILL)).clamp(0.0, 1.0)
-    return 1.0 / (node_fill * st.weight).sum(1), inside
+    return 1.0 / (node_fill * st.weights()).sum(1), inside

@@ -21,6 +21,7 @@ from .packing import FINE, cup_solid_mass, rod_fill_points
 from .projection import CellMatrices
 from .state import State
 from .step import Scene, step
+from .transfer import use_fused
 from .viscous import CellStencil
 from .walls import WallParticles
 
@@ -85,6 +86,7 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
                        else None),
         walls=(WallParticles.of(grid, cup, rod, spacing, rod_height, offset_index, bounds) if config.wall_pressure
                else None),
+        fused=use_fused(config.kernels, device, config.compile),
     )
 
 

@@ -21,6 +21,7 @@ from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
 from .packing import SURFACE_FILL, deposit, packed_volume_ratio, place_rod_points
 from .projection import CellMatrices, Projection, divergence, divergence_transpose, solve_pressure
+from . import transfer
 from .state import State
 from .viscous import CellStencil, cell_any, cell_mean, cell_min, cell_velocity_gradient, nodal_forces
 from .walls import WallParticles, wall_impulses
@@ -67,6 +68,7 @@ class Scene:
             following the particles' compression (``bulk_modulus`` is then 0); None: a compressible fluid.
         walls: boundary particles in the solids that carry the fluid's pressure (``walls.WallParticles``); None:
             the solids' nodes see the fluid's pressure only.
+        fused: whether the particle-grid transfers run as the fused C++ kernels (``transfer``) or as torch ops.
     """
 
     grid: Grid
@@ -98,6 +100,7 @@ class Scene:
     rod_slip_length: float | Tensor = 0.0
     cell_matrices: CellMatrices | None = None
     walls: WallParticles | None = None
+    fused: bool = False
 
     @property
     def dim(self) -> int:
@@ -125,25 +128,20 @@ def p2g(scene: Scene, state: State, dt: float) -> tuple[Tensor, Stencil]:
     particle's current volume and σ = τ_v(J) I its volumetric stress.
     """
     grid, m, d = scene.grid, scene.particle_mass, scene.dim
-    st = quadratic_stencil(grid, state.x, scene.offset_index, scene.strides)
+    st = quadratic_stencil(grid, state.x, scene.offset_index, scene.strides, weights=not scene.fused)
     kirchhoff = scene.particle_volume * state.J * volumetric_stress(state.J, scene.bulk_modulus)
     # node k receives w_pk (m v_p + A_p (x_k − x_p)), A = m C − (4 Δt/dx²) V σ, x_k − x_p = (o_k − frac_p) dx:
-    # w_pk T_p [o_k, 1] with T_p = [[dx A_p, b_p], [0, m]], b_p = m v_p − dx A_p frac_p. Component-major layout
-    # (d + 1, N, ·) turns the per-particle products into one matrix product and one row-wise scatter.
+    # w_pk T_p [o_k, 1] with T_p = [[dx A_p, b_p], [0, m]], b_p = m v_p − dx A_p frac_p, in the component-major
+    # layout (d + 1, N, d + 1) of ``transfer.scatter``.
     affine = grid.dx * (m * state.C - (dt * 4.0 / grid.dx**2) * kirchhoff[:, None, None] * scene.eye)
     b = m * state.v - (affine @ st.frac[:, :, None]).squeeze(-1)
-    n, k = st.weight.shape
+    n = state.x.shape[0]
     rows = [torch.cat([affine, b[:, :, None]], dim=2).transpose(0, 1), scene.mass_row.expand(1, n, d + 1)]
     if scene.flip > 0:  # the same transfer without the pressure term: the grid's velocity before any force
         plain = grid.dx * m * state.C
         rows.append(torch.cat([plain, (m * state.v - (plain @ st.frac[:, :, None]).squeeze(-1))[:, :, None]],
                               dim=2).transpose(0, 1))
-    transfer = torch.cat(rows)  # (columns, N, d + 1)
-    columns = transfer.shape[0]
-    contrib = (transfer.view(-1, d + 1) @ scene.stencil_points.T).view(columns, n, k) * st.weight
-    index = st.index.view(1, -1).expand(columns, -1)
-    buffer = torch.zeros(columns, grid.num_nodes, dtype=state.x.dtype, device=state.x.device)
-    return buffer.scatter_add(1, index, contrib.view(columns, -1)).T.contiguous(), st
+    return transfer.scatter(torch.cat(rows), st, grid.num_nodes, scene.stencil_points, scene.fused), st
 
 
 def boundary_operators(scene: Scene, has_mass: Tensor, pose: RodPose) -> tuple[Tensor, Tensor, Tensor,
@@ -270,10 +268,9 @@ def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float, v_be
     ``scene.flip`` of the velocity the grid did not see, v_p − Σ w v_i^before (FLIP). ``fill``: the nodes' fill
     (``node_fill``); with it J relaxes towards the packing at ``scene.relaxation_rate`` (``packing``).
     """
-    n, k, d = st.weight.shape[0], st.weight.shape[1], scene.dim
-    v_nodes = v_grid.T.contiguous().index_select(1, st.index.view(-1)).view(d, n, k)  # component-major
+    d = scene.dim
     # Σ_k w_k v_k [o_kᵀ, 1]: the first moment of the node velocities and, in the last column, the velocity
-    moments = ((v_nodes * st.weight).view(d * n, k) @ scene.stencil_points).view(d, n, d + 1)
+    moments = transfer.gather(v_grid, st, scene.stencil_points, scene.fused)  # (d, N, d + 1)
     moments = moments.transpose(0, 1).contiguous()  # (N, d, d + 1); a new state has the layout of a seeded one
     v = moments[:, :, d].contiguous()
     # C = (4/dx²) Σ w v_i (x_i − x_p)ᵀ, with x_i − x_p = (offset − frac) dx
@@ -283,7 +280,7 @@ def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float, v_be
         packed, inside = packed_volume_ratio(fill, st)
         J = J + (dt * scene.relaxation_rate) * inside * (packed - J)
     if v_before is not None:
-        seen = (v_before.T.contiguous().index_select(1, st.index.view(-1)).view(d, n, k) * st.weight).sum(-1).T
+        seen = transfer.gather(v_before, st, scene.stencil_points, scene.fused)[:, :, d].T
         v = v + scene.flip * (state.v - seen)
     return State(x=state.x + dt * v, v=v, C=C, J=J)
 

@@ -66,8 +66,8 @@ class Stencils:
         probes = points + (PROBE_DISTANCE * grid.dx - phi)[:, None] * normal
         at_probe = quadratic_stencil(grid, torch.clamp(probes, bounds[0], bounds[1]), offset_index, strides)
         at_wall = quadratic_stencil(grid, torch.clamp(points, bounds[0], bounds[1]), offset_index, strides)
-        push = at_wall.weight[:, :, None] * (offsets[None] - at_wall.frac[:, None, :])
-        return cls(at_probe.index, at_probe.weight, at_wall.index, push, points - probes)
+        push = at_wall.weights()[:, :, None] * (offsets[None] - at_wall.frac[:, None, :])
+        return cls(at_probe.index, at_probe.weights(), at_wall.index, push, points - probes)
 
 
 @dataclass(frozen=True)
@@ -98,7 +98,7 @@ def fluid_state(scene: "Scene", state: State, st: Stencil, mass: Tensor) -> Tens
     weighted by the mass they put there, and that mass ``mass`` [kg] (p2g's) (2-D: per unit length),
     (num_nodes, 3)."""
     values = torch.stack([-volumetric_stress(state.J, scene.bulk_modulus), state.J], 1)
-    weighted = scene.particle_mass * values[:, None, :] * st.weight[:, :, None]  # (N, 3^d, 2)
+    weighted = scene.particle_mass * values[:, None, :] * st.weights()[:, :, None]  # (N, 3^d, 2)
     return torch.cat([torch.zeros(scene.grid.num_nodes, 2, dtype=state.x.dtype, device=state.x.device).index_add(
         0, st.index.view(-1), weighted.reshape(-1, 2)), mass[:, None]], 1)
 
