@@ -87,11 +87,14 @@ def place_rod_points(shape: RodShape, points: Tensor, pose: RodPose) -> Tensor:
     return placed + origin
 
 
-def packed_volume_ratio(fill: Tensor, st: Stencil) -> tuple[Tensor, Tensor]:
+def packed_volume_ratio(fill: Tensor, st: Stencil, interpolated: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """The volume ratio J^ρ = 1 / Σ_i w_ip φ_i that the nodes' fill φ (num_nodes,) implies for each particle, (N,),
     and how far the particle lies inside the fluid, (N,) in [0, 1]: 0 where its emptiest stencil node is filled to
     ``SURFACE_FILL`` or less (a free surface), 1 where it is full, linear between, so that the relaxation switches
-    off smoothly at a surface (a hard switch made the readings jump with the parameters)."""
+    off smoothly at a surface (a hard switch made the readings jump with the parameters). ``interpolated``:
+    Σ_i w_ip φ_i where the caller has it already (g2p's gather), (N,)."""
     node_fill = fill[st.index]
     inside = ((node_fill.min(1).values - SURFACE_FILL) / (1.0 - SURFACE_FILL)).clamp(0.0, 1.0)
-    return 1.0 / (node_fill * st.weights()).sum(1), inside
+    if interpolated is None:
+        interpolated = (node_fill * st.weights()).sum(1)
+    return 1.0 / interpolated, inside

@@ -269,19 +269,20 @@ def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float, v_be
     (``node_fill``); with it J relaxes towards the packing at ``scene.relaxation_rate`` (``packing``).
     """
     d = scene.dim
-    # Σ_k w_k v_k [o_kᵀ, 1]: the first moment of the node velocities and, in the last column, the velocity
-    moments = transfer.gather(v_grid, st, scene.stencil_points, scene.fused)  # (d, N, d + 1)
-    moments = moments.transpose(0, 1).contiguous()  # (N, d, d + 1); a new state has the layout of a seeded one
+    # one gather of every nodal field the particles read: Σ_k w_k G_k [o_kᵀ, 1] per column (transfer.gather)
+    columns = [v_grid] + ([v_before] if v_before is not None else []) + ([fill[:, None]] if fill is not None else [])
+    gathered = transfer.gather(torch.cat(columns, 1), st, scene.stencil_points, scene.fused)  # (C, N, d + 1)
+    # the node velocities' first moment and, in the last column, the velocity
+    moments = gathered[:d].transpose(0, 1).contiguous()  # (N, d, d + 1); a new state has the layout of a seeded one
     v = moments[:, :, d].contiguous()
     # C = (4/dx²) Σ w v_i (x_i − x_p)ᵀ, with x_i − x_p = (offset − frac) dx
     C = (4.0 / scene.grid.dx) * (moments[:, :, :d] - v[:, :, None] * st.frac[:, None, :])
     J = state.J * (1.0 + dt * C.diagonal(dim1=-2, dim2=-1).sum(-1))
     if fill is not None:
-        packed, inside = packed_volume_ratio(fill, st)
+        packed, inside = packed_volume_ratio(fill, st, gathered[-1, :, d])
         J = J + (dt * scene.relaxation_rate) * inside * (packed - J)
     if v_before is not None:
-        seen = transfer.gather(v_before, st, scene.stencil_points, scene.fused)[:, :, d].T
-        v = v + scene.flip * (state.v - seen)
+        v = v + scene.flip * (state.v - gathered[d:2 * d, :, d].T)
     return State(x=state.x + dt * v, v=v, C=C, J=J)
 
 

@@ -65,11 +65,41 @@ inline void check_particle(const int64_t* ip, int K, int64_t nodes) {
               ", off the grid of ", nodes, " nodes");
 }
 
-template <int D, typename T>
-inline T project(const T* row, const int* o) {  // row . [o, 1]
-  T v = row[D];
-  for (int a = 0; a < D; ++a) v += o[a] * row[a];
-  return v;
+// value[k][c] = P[c, p, :] . s_k for the particle's 3^d nodes, by increments along the axes.
+template <int D, int C, typename T>
+inline void node_values(const T* P, int64_t p, int64_t N, T (*value)[C]) {
+  for (int c = 0; c < C; ++c) {
+    const T* row = P + (c * N + p) * (D + 1);
+    int k = 0;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const T ij = row[D] + T(i) * row[0] + T(j) * row[1];
+        if constexpr (D == 2) {
+          value[k++][c] = ij;
+        } else {
+          for (int l = 0; l < 3; ++l) value[k++][c] = ij + T(l) * row[2];
+        }
+      }
+  }
+}
+
+// P[c, p, :] = sum_k value[k][c] s_k: the sum and first moments over the particle's 3^d nodes.
+template <int D, int C, typename T>
+inline void node_moments(const T (*value)[C], int64_t p, int64_t N, T* P) {
+  for (int c = 0; c < C; ++c) {
+    T moment[D + 1] = {};
+    int k = 0;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        for (int l = 0; l < (D == 3 ? 3 : 1); ++l) {
+          const T v = value[k++][c];
+          moment[0] += T(i) * v;
+          moment[1] += T(j) * v;
+          if constexpr (D == 3) moment[2] += T(l) * v;
+          moment[D] += v;
+        }
+    for (int a = 0; a <= D; ++a) P[(c * N + p) * (D + 1) + a] = moment[a];
+  }
 }
 
 template <int D, int C, bool Tangent, typename T>
@@ -78,11 +108,12 @@ void scatter_loop(const T* P, const T* frac, const T* dfrac, const int64_t* inde
   for (int64_t p = 0; p < N; ++p) {
     const int64_t* ip = index + p * K;
     check_particle(ip, K, nodes);
+    T value[K][C];
+    node_values<D, C>(P, p, N, value);
     T factors[D][3], slopes[D][3];
-    for_each_node<D, Tangent>(frac + p * D, dfrac + p * D, factors, slopes, [&](int k, const int* o, T w) {
-      const int64_t node = ip[k];
-      T* g = G + node * C;
-      for (int c = 0; c < C; ++c) g[c] += w * project<D>(P + (c * N + p) * (D + 1), o);
+    for_each_node<D, Tangent>(frac + p * D, dfrac + p * D, factors, slopes, [&](int k, const int*, T w) {
+      T* g = G + ip[k] * C;
+      for (int c = 0; c < C; ++c) g[c] += w * value[k][c];
     });
   }
 }
@@ -99,19 +130,13 @@ void gather_loop(const T* G, const T* frac, const T* dfrac, const int64_t* index
   for (int64_t p = 0; p < N; ++p) {
     const int64_t* ip = index + p * K;
     check_particle(ip, K, nodes);
-    T acc[C][D + 1] = {};
+    T value[K][C];
     T factors[D][3], slopes[D][3];
-    for_each_node<D, Tangent>(frac + p * D, dfrac + p * D, factors, slopes, [&](int k, const int* o, T w) {
-      const int64_t node = ip[k];
-      const T* g = G + node * C;
-      for (int c = 0; c < C; ++c) {
-        const T v = w * g[c];
-        for (int a = 0; a < D; ++a) acc[c][a] += o[a] * v;
-        acc[c][D] += v;
-      }
+    for_each_node<D, Tangent>(frac + p * D, dfrac + p * D, factors, slopes, [&](int k, const int*, T w) {
+      const T* g = G + ip[k] * C;
+      for (int c = 0; c < C; ++c) value[k][c] = w * g[c];
     });
-    for (int c = 0; c < C; ++c)
-      for (int a = 0; a <= D; ++a) P[(c * N + p) * (D + 1) + a] = acc[c][a];
+    node_moments<D, C>(value, p, N, P);
   }
 }
 
@@ -127,13 +152,14 @@ void frac_grad_impl(const T* G, const T* P, const T* frac, const int64_t* index,
   for (int64_t p = 0; p < N; ++p) {
     const int64_t* ip = index + p * K;
     check_particle(ip, K, nodes);
+    T value[K][C];
+    node_values<D, C>(P, p, N, value);
     T w[D][3], dw[D][3];
     T grad[D] = {};
     for_each_node<D, false>(frac + p * D, frac + p * D, w, dw, [&](int k, const int* o, T) {
-      const int64_t node = ip[k];
-      const T* g = G + node * C;
+      const T* g = G + ip[k] * C;
       T dL_dw = 0;
-      for (int c = 0; c < C; ++c) dL_dw += g[c] * project<D>(P + (c * N + p) * (D + 1), o);
+      for (int c = 0; c < C; ++c) dL_dw += g[c] * value[k][c];
       for (int a = 0; a < D; ++a) grad[a] += dL_dw * weight_derivative<D, T>(w, dw, o, a);
     });
     for (int a = 0; a < D; ++a) out[p * D + a] = grad[a];
