@@ -83,21 +83,27 @@ inline void node_values(const T* P, int64_t p, int64_t N, T (*value)[C]) {
   }
 }
 
-// P[c, p, :] = sum_k value[k][c] s_k: the sum and first moments over the particle's 3^d nodes.
+// P[c, p, :] = sum_k value[k][c] s_k: the sum and first moments over the particle's 3^d nodes (a 3-D stencil's
+// lines along its last axis summed first).
 template <int D, int C, typename T>
 inline void node_moments(const T (*value)[C], int64_t p, int64_t N, T* P) {
   for (int c = 0; c < C; ++c) {
     T moment[D + 1] = {};
     int k = 0;
     for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j)
-        for (int l = 0; l < (D == 3 ? 3 : 1); ++l) {
-          const T v = value[k++][c];
-          moment[0] += T(i) * v;
-          moment[1] += T(j) * v;
-          if constexpr (D == 3) moment[2] += T(l) * v;
-          moment[D] += v;
+      for (int j = 0; j < 3; ++j) {
+        T line = value[k][c];
+        if constexpr (D == 3) {
+          line += value[k + 1][c] + value[k + 2][c];
+          moment[2] += value[k + 1][c] + T(2) * value[k + 2][c];
+          k += 3;
+        } else {
+          ++k;
         }
+        moment[0] += T(i) * line;
+        moment[1] += T(j) * line;
+        moment[D] += line;
+      }
     for (int a = 0; a <= D; ++a) P[(c * N + p) * (D + 1) + a] = moment[a];
   }
 }
