@@ -59,8 +59,8 @@ class SimConfig:
         dtype: ``"float32"`` or ``"float64"``.
         device: torch device string, e.g. ``"cpu"`` or ``"cuda"``.
         compile: run each step through ``torch.compile`` (inductor, static shapes, scalar C++ kernels). Costs
-            tens of seconds of compilation per scene, law type and time step, then steps run about 1.2x faster
-            than eager on the paper's 3-D scene and 2.3-2.9x on the 2-D default, forward and forward + backward,
+            tens of seconds of compilation per scene, law type and time step, then steps run about 1.9x faster
+            than eager on the paper's 3-D scene and 2.4-3.0x on the 2-D default, forward and forward + backward,
             on the 2-core CPU (docs/benchmarks.md); worth it for long rollouts and repeated fits of one scene, not
             for a one-off short simulation.
         kernels: how the particle-grid transfers run (``diffstir.mpm.transfer``): ``"fused"``, C++ kernels for the
