@@ -12,7 +12,7 @@ from diffstir.rheology import Carreau
 from diffstir.rig import Rig
 from diffstir.trajectory import circle
 
-pytestmark = pytest.mark.skipif(not use_fused("auto", torch.device("cpu"), False),
+pytestmark = pytest.mark.skipif(not use_fused("auto", torch.device("cpu")),
                                 reason="the fused kernels do not build here (no C++ compiler or ninja)")
 
 
@@ -120,3 +120,15 @@ def test_forward_mode_tangents_equal_the_torch_ops(d):
                 duals[fused] = forward_ad.unpack_dual(out)
         torch.testing.assert_close(duals[True].primal, function(*inputs, True), rtol=0, atol=0)
         torch.testing.assert_close(duals[True].tangent, duals[False].tangent, rtol=1e-12, atol=1e-13)
+
+
+def test_without_a_compiler_auto_takes_the_torch_ops_and_fused_says_why(monkeypatch, caplog):
+    """A machine where the kernels do not build still simulates (``auto``, with a warning); asking for them
+    (``fused``) is an error that names the cause and the setting that avoids it."""
+    from diffstir.mpm import transfer
+    monkeypatch.setattr(transfer, "_build", lambda: (None, OSError("c++: command not found")))
+    with caplog.at_level("WARNING", logger="diffstir.mpm.transfer"):
+        assert transfer.use_fused("auto", torch.device("cpu")) is False
+    assert "command not found" in caplog.text
+    with pytest.raises(RuntimeError, match=r"command not found.*sim.kernels=torch"):
+        transfer.use_fused("fused", torch.device("cpu"))

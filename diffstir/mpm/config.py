@@ -65,8 +65,9 @@ class SimConfig:
             for a one-off short simulation.
         kernels: how the particle-grid transfers run (``diffstir.mpm.transfer``): ``"fused"``, C++ kernels for the
             CPU, compiled on first use (about 20 s, then cached; needs a C++ compiler and ninja); ``"torch"``,
-            torch tensor ops (any device); ``"auto"``, fused on the CPU without ``compile`` where they build, torch
-            ops otherwise (on CUDA, under ``compile``, where no compiler is found). Same results to rounding.
+            torch tensor ops (any device); ``"auto"``, fused on the CPU where they build, torch ops otherwise (on
+            CUDA, where no compiler is found). Same results to rounding; ``compile`` calls the fused kernels from its
+            graph.
     """
 
     dim: Literal[2, 3] = 3

@@ -86,7 +86,7 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
                        else None),
         walls=(WallParticles.of(grid, cup, rod, spacing, rod_height, offset_index, bounds) if config.wall_pressure
                else None),
-        fused=use_fused(config.kernels, device, config.compile),
+        fused=use_fused(config.kernels, device),
     )
 
 

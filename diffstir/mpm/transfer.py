@@ -8,9 +8,8 @@ With w_pk the weight of particle p's stencil node k, o_k ∈ {0, 1, 2}^d that no
 P is component-major, (C, N, d + 1); G is (num_nodes, C). The two are adjoint, and both depend on the particles'
 positions through the weights, which are differentiated too.
 
-Two implementations give the same numbers. ``fused=False``: torch tensor ops, on any device, under
-``torch.compile`` (inductor fuses them with their neighbours) and under forward-mode AD. ``fused=True``: C++ loops
-for the CPU (``csrc/transfer.cpp``, compiled on first use with ``torch.utils.cpp_extension`` and cached per
+Two implementations give the same numbers. ``fused=False``: torch tensor ops, on any device (under
+``torch.compile`` inductor fuses them with their neighbours). ``fused=True``: C++ loops for the CPU (``csrc/transfer.cpp``, compiled on first use with ``torch.utils.cpp_extension`` and cached per
 machine) that compute each particle's weights once and touch each of its nodes once, with their own derivatives
 in reverse and forward mode, registered as torch operators so that ``torch.compile`` calls them from its graph;
 the torch ops build (C, N, 3^d) intermediates and scatter them instead.
@@ -33,22 +32,30 @@ SOURCE = Path(__file__).parent / "csrc" / "transfer.cpp"
 
 
 @functools.cache
+def _build():
+    """The compiled kernels' module and None, or None and the error that stopped the build (tried once)."""
+    from torch.utils.cpp_extension import load
+    log.info("building the fused transfer kernels from %s (once per machine)", SOURCE)
+    try:
+        return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"]), None
+    except Exception as error:  # compiler, ninja or header missing: a build problem, not a simulation one
+        return None, error
+
+
 def kernels():
     """The compiled C++ kernels, built on first use (about 20 s, then cached under ``TORCH_EXTENSIONS_DIR``).
 
     Raises RuntimeError, naming what failed, where they cannot be built (no C++ compiler or ninja)."""
-    from torch.utils.cpp_extension import load
-    log.info("building the fused transfer kernels from %s (once per machine)", SOURCE)
-    try:
-        return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"])
-    except Exception as error:  # compiler, ninja or header missing: a build problem, not a simulation one
+    module, error = _build()
+    if module is None:
         raise RuntimeError(f"the fused transfer kernels ({SOURCE}) could not be built: {error}; "
                            "set sim.kernels=torch to run without them") from error
+    return module
 
 
-def use_fused(kernels_setting: str, device: torch.device, compiled: bool) -> bool:
-    """Whether a scene runs the fused kernels under ``sim.kernels`` = ``kernels_setting`` (``SimConfig.kernels``)
-    on ``device``, with the step compiled or not; builds them where they are to be used.
+def use_fused(kernels_setting: str, device: torch.device) -> bool:
+    """Whether a scene on ``device`` runs the fused kernels under ``sim.kernels`` = ``kernels_setting``
+    (``SimConfig.kernels``); builds them where they are to be used.
 
     Raises RuntimeError where ``"fused"`` was asked for and they cannot be built; ``"auto"`` then warns and takes
     the torch ops."""
@@ -57,10 +64,9 @@ def use_fused(kernels_setting: str, device: torch.device, compiled: bool) -> boo
         return True
     if kernels_setting == "torch" or device.type != "cpu":
         return False
-    try:
-        kernels()
-    except RuntimeError as error:
-        log.warning("%s", error)
+    module, error = _build()
+    if module is None:
+        log.warning("the fused transfer kernels could not be built (%s); the transfers run as torch ops", error)
         return False
     return True
 
