@@ -15,13 +15,13 @@ import torch
 from torch import Tensor
 
 from ..rig import Cup
+from . import transfer
 from .boundaries import (GhostBand, GhostOperator, RodPose, RodShape, RodWindow, cup_sdf, ghost_band, is_solid,
                          rod_sdf, rod_velocity)
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
 from .packing import SURFACE_FILL, deposit, packed_volume_ratio, place_rod_points
 from .projection import CellMatrices, Projection, divergence, divergence_transpose, solve_pressure
-from . import transfer
 from .state import State
 from .viscous import CellStencil, cell_any, cell_mean, cell_min, cell_velocity_gradient, nodal_forces
 from .walls import WallParticles, wall_impulses

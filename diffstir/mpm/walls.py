@@ -29,6 +29,7 @@ import torch
 from torch import Tensor
 
 from ..rig import Cup
+from . import transfer
 from .boundaries import PROBE_DISTANCE, RodPose, RodShape, cup_sdf, rod_sdf
 from .grid import Grid, Stencil, quadratic_stencil
 from .materials import volumetric_stress
@@ -97,10 +98,11 @@ def fluid_state(scene: "Scene", state: State, st: Stencil, mass: Tensor) -> Tens
     """Σ_p w_ip m_p (p_p, J_p, 1) on each node: the particles' pressure p = −τ_v(J) [Pa] and volume ratio J [1]
     weighted by the mass they put there, and that mass ``mass`` [kg] (p2g's) (2-D: per unit length),
     (num_nodes, 3)."""
-    values = torch.stack([-volumetric_stress(state.J, scene.bulk_modulus), state.J], 1)
-    weighted = scene.particle_mass * values[:, None, :] * st.weights()[:, :, None]  # (N, 3^d, 2)
-    return torch.cat([torch.zeros(scene.grid.num_nodes, 2, dtype=state.x.dtype, device=state.x.device).index_add(
-        0, st.index.view(-1), weighted.reshape(-1, 2)), mass[:, None]], 1)
+    values = scene.particle_mass * torch.stack([-volumetric_stress(state.J, scene.bulk_modulus), state.J])  # (2, N)
+    rows = torch.cat([torch.zeros(2, values.shape[1], scene.dim, dtype=values.dtype, device=values.device),
+                      values[:, :, None]], 2)  # (2, N, d + 1): rows [0, m p] and [0, m J] (``transfer.scatter``)
+    weighted = transfer.scatter(rows, st, scene.grid.num_nodes, scene.stencil_points, scene.fused)
+    return torch.cat([weighted, mass[:, None]], 1)
 
 
 def pressure_impulse(scene: "Scene", weighted: Tensor, stencils: Stencils, dt: float) -> Tensor:
