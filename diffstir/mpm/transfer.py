@@ -35,7 +35,7 @@ SOURCE = Path(__file__).parent / "csrc" / "transfer.cpp"
 def _build():
     """The compiled kernels' module and None, or None and the error that stopped the build (tried once)."""
     from torch.utils.cpp_extension import load
-    log.info("building the fused transfer kernels from %s (once per machine)", SOURCE)
+    log.info("loading the fused transfer kernels (%s; compiled on a machine's first use, about 20 s)", SOURCE)
     try:
         return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"]), None
     except Exception as error:  # compiler, ninja or header missing: a build problem, not a simulation one
