@@ -64,10 +64,10 @@ class SimConfig:
             on the 2-core CPU (docs/benchmarks.md); worth it for long rollouts and repeated fits of one scene, not
             for a one-off short simulation.
         kernels: how the particle-grid transfers run (``diffstir.mpm.transfer``): ``"fused"``, C++ kernels for the
-            CPU, compiled on first use (about 20 s, then cached; needs a C++ compiler and ninja); ``"torch"``,
-            torch tensor ops (any device); ``"auto"``, fused on the CPU where they build, torch ops otherwise (on
-            CUDA, where no compiler is found). Same results to rounding; ``compile`` calls the fused kernels from its
-            graph.
+            CPU, compiled on first use (about 50 s and 1.7 GB of memory for the compiler, then cached; needs a C++
+            compiler and ninja); ``"torch"``, torch tensor ops (any device); ``"auto"``, fused on the CPU where they
+            build, torch ops otherwise (on CUDA, where no compiler is found). Same results to rounding; ``compile``
+            calls the fused kernels from its graph.
     """
 
     dim: Literal[2, 3] = 3

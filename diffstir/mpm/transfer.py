@@ -35,7 +35,7 @@ SOURCE = Path(__file__).parent / "csrc" / "transfer.cpp"
 def _build():
     """The compiled kernels' module and None, or None and the error that stopped the build (tried once)."""
     from torch.utils.cpp_extension import load
-    log.info("loading the fused transfer kernels (%s; compiled on a machine's first use, about 20 s)", SOURCE)
+    log.info("loading the fused transfer kernels (%s; compiled on a machine's first use, about 50 s)", SOURCE)
     try:
         return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"]), None
     except Exception as error:  # compiler, ninja or header missing: a build problem, not a simulation one
@@ -43,7 +43,7 @@ def _build():
 
 
 def kernels():
-    """The compiled C++ kernels, built on first use (about 20 s, then cached under ``TORCH_EXTENSIONS_DIR``).
+    """The compiled C++ kernels, built on first use (about 50 s, then cached under ``TORCH_EXTENSIONS_DIR``).
 
     Raises RuntimeError, naming what failed, where they cannot be built (no C++ compiler or ninja)."""
     module, error = _build()
