@@ -66,12 +66,13 @@ HORIZON = 8000  # steps: the paper's 8 s recording at 1 ms
 
 
 def import_reference(tree: Path):
-    """The ``diffstir`` package of another checkout, importable as ``diffstir_reference``."""
+    """The ``diffstir`` package of another checkout, importable as ``diffstir_reference`` (its torch operators as
+    ``diffstir_reference::``)."""
     target = Path(tempfile.mkdtemp(prefix="diffstir-reference-"))
     shutil.copytree(tree / "diffstir", target / "diffstir_reference")
     for path in (target / "diffstir_reference").rglob("*.py"):
         text = path.read_text()
-        path.write_text(re.sub(r"\bdiffstir(?=[. ])", "diffstir_reference", text))
+        path.write_text(re.sub(r"\bdiffstir(?=[.: ])", "diffstir_reference", text))
     sys.path.insert(0, str(target))
     return {name: importlib.import_module(f"diffstir_reference.{name}")
             for name in ("mpm", "rheology", "rig", "trajectory")}
