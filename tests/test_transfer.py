@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.mpm.grid import Grid, quadratic_stencil
+from diffstir.mpm.grid import Grid, flat_index, quadratic_stencil
 from diffstir.mpm.transfer import gather, scatter, use_fused
 from diffstir.rheology import Carreau
 from diffstir.rig import Rig
@@ -23,7 +23,7 @@ def _setup(d: int, count: int = 20, seed: int = 0):
     offsets = grid.stencil_offsets()
     points = torch.cat([offsets, torch.ones(len(offsets), 1, dtype=torch.int64)], 1).double()
     x = -0.1 + 0.05 * (1.6 + 4.8 * torch.rand(count, d, generator=generator, dtype=torch.float64))
-    return grid, offsets @ grid.strides(), points, x.requires_grad_(True)
+    return grid, flat_index(offsets, grid.strides()), points, x.requires_grad_(True)
 
 
 def _stencil(grid, offset_index, x, fused):

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..rig import Cup, Rod
-from .grid import Grid, outer_weights
+from .grid import Grid, flat_index, outer_weights
 
 PROBE_DISTANCE = 2.0  # cells from the surface to the nearest probe; its linear stencil then lies in the fluid
 BAND = 2.0  # cells: nodes deeper than this inside a solid carry no fluid mass and just take the solid's velocity
@@ -146,7 +146,8 @@ class MeshRod(RodShape):
         field = torch.cat([self.phi[..., None], self.gradient], -1).to(local)
         samples = Grid(origin=self.origin.to(local), shape=tuple(self.phi.shape), dx=self.spacing)
         sample = interpolate_linear(samples, field.reshape(-1, 4), local,
-                                    outside=torch.tensor([4 * self.spacing, 0, 0, 0], dtype=local.dtype))
+                                    outside=torch.tensor([4 * self.spacing, 0, 0, 0], dtype=local.dtype,
+                                                         device=local.device))
         normal = sample[:, 1:] / sample[:, 1:].norm(dim=-1, keepdim=True).clamp_min(1e-12)
         return sample[:, 0], normal
 
@@ -206,7 +207,7 @@ def linear_stencil(grid: Grid, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     inside = ((base >= 0) & (base <= grid.last_cell)).all(dim=1)
     base = torch.minimum(base.clamp_min(0), grid.last_cell)
     frac = (cell - base).clamp(0.0, 1.0)
-    index = (base @ grid.flat_strides)[:, None] + grid.corner_offsets[None, :]
+    index = flat_index(base, grid.flat_strides)[:, None] + grid.corner_offsets[None, :]
     return index, outer_weights(torch.stack([1.0 - frac, frac], dim=-1)), inside
 
 
@@ -355,10 +356,10 @@ class RodWindow:
         block = torch.stack(torch.meshgrid(*[torch.arange(n, device=grid.origin.device) for n in sizes],
                                            indexing="ij"), dim=-1).reshape(-1, grid.dim)
         last = torch.tensor(grid.shape[:2], device=grid.origin.device) - width
-        return cls(offsets=block @ grid.flat_strides, reach=reach, last_start=last)
+        return cls(offsets=flat_index(block, grid.flat_strides), reach=reach, last_start=last)
 
     def nodes(self, grid: Grid, axis: Tensor) -> Tensor:
         """Flat indices of the window's nodes for the rod's axis at ``axis`` [m], (W,) int64."""
         start = torch.floor((axis - self.reach - grid.origin[:2]) / grid.dx).detach().long()
         start = torch.minimum(start.clamp_min(0), self.last_start)
-        return start @ grid.flat_strides[:2] + self.offsets
+        return flat_index(start, grid.flat_strides[:2]) + self.offsets

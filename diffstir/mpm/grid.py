@@ -50,7 +50,7 @@ class Grid:
     @cached_property
     def corner_offsets(self) -> Tensor:
         """Flat index offsets of a cell's 2^d corners from its lowest corner, (2^d,) int64, built once."""
-        return self.stencil_offsets(2) @ self.flat_strides
+        return flat_index(self.stencil_offsets(2), self.flat_strides)
 
     @cached_property
     def last_cell(self) -> Tensor:
@@ -74,7 +74,7 @@ class Grid:
         axes = [torch.arange(s - 1, device=self.origin.device) for s in self.shape]
         lower = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, self.dim)
         strides = self.strides()
-        return (lower @ strides)[:, None] + (self.stencil_offsets(2) @ strides)[None, :]
+        return flat_index(lower, strides)[:, None] + flat_index(self.stencil_offsets(2), strides)[None, :]
 
 
 @dataclass
@@ -115,15 +115,21 @@ def outer_weights(w1d: Tensor) -> Tensor:
     return weight
 
 
+def flat_index(cells: Tensor, strides: Tensor) -> Tensor:
+    """The flat (row-major) node index Σ_a c_a s_a of integer node coordinates ``cells`` (..., d) int64 with the
+    grid's ``strides`` (d,) int64; a sum of products, as CUDA has no integer matrix product."""
+    return (cells * strides).sum(-1)
+
+
 def quadratic_stencil(grid: Grid, x: Tensor, offset_index: Tensor, strides: Tensor, weights: bool = True) -> Stencil:
     """The quadratic B-spline stencil of particles at ``x`` [m], (N, d), with its weights unless ``weights`` is
     False.
 
     ``offset_index`` is the flat index offset of each stencil node from the base node, (3^d,) int64
-    (``stencil_offsets() @ strides``); ``strides`` the grid's flat-index strides.
+    (``flat_index(stencil_offsets(), strides)``); ``strides`` the grid's flat-index strides.
     """
     cell = (x - grid.origin) / grid.dx
     base = torch.floor(cell - 0.5).detach()
     frac = cell - base
-    index = (base.long() @ strides)[:, None] + offset_index[None, :]
+    index = flat_index(base.long(), strides)[:, None] + offset_index[None, :]
     return Stencil(index=index, frac=frac, weight=outer_weights(bspline_weights(frac)) if weights else None)

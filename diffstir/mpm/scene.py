@@ -15,7 +15,7 @@ from torch import nn
 from ..rig import Rig
 from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, is_solid, rod_sdf, rod_shape
 from .config import SimConfig
-from .grid import Grid
+from .grid import Grid, flat_index
 from .materials import deviatoric_rate_of_strain
 from .packing import FINE, cup_solid_mass, rod_fill_points
 from .projection import CellMatrices
@@ -61,7 +61,7 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
     # a particle's base node (floor(x/dx − 1/2)) and its stencil's last node (+2) must lie on the grid
     highest = grid.origin + (torch.tensor(shape, dtype=dtype, device=device) - 1.5001) * dx
     bounds = torch.stack([grid.origin + 0.5001 * dx, highest])
-    offset_index = offsets @ grid.strides()
+    offset_index = flat_index(offsets, grid.strides())
     rod_spacing = spacing / FINE
     rod_height = rig.rod.immersion_depth + config.headroom + 2 * dx  # m above its tip that its particles fill
     cells = CellStencil.of(grid)
