@@ -4,6 +4,7 @@
                                           [--variants eager compiled] [--reference-tree DIR] [--repeats 3]
     python scripts/benchmark_simulator.py --gradient-steps 8000 [--scenes paper3d]
     python scripts/benchmark_simulator.py --profile --scenes paper3d --variants compiled [--steps 50]
+    python scripts/benchmark_simulator.py --device cuda --variants eager compiled cpu
 
 Every variant of a scene runs in this one process, interleaved (variant A, B, A, B, ...), and the table gives each
 variant's time as a ratio to the first variant (the reference, the eager step by default): on a shared machine the
@@ -18,6 +19,7 @@ absolute ms move with the other jobs, the ratios much less. Variants:
 - ``projection``: ``SimConfig.pressure = "projection"`` (2-D scenes only), the incompressible pressure; its time
   step is longer (no acoustic limit), so compare the cost per simulated second from the dt column too.
 - ``walls``: ``SimConfig.wall_pressure = True``, boundary particles in the solids carrying the fluid's pressure.
+- ``cpu``: the eager step on the CPU, the reference a GPU's variants are compared with (``--device cuda``).
 - ``reference``: another checkout's simulator (``--reference-tree DIR``, a directory holding a ``diffstir``
   package, e.g. ``git worktree add /tmp/diffstir-ref <commit>``), imported side by side under another name.
 
@@ -29,7 +31,11 @@ ceil(8000 / segment) states plus one recomputed segment's graph. ``peak RSS`` is
 set size (Linux ru_maxrss) over the whole run.
 
 ``--gradient-steps N`` measures memory directly instead: for each scene (eager, its configured checkpointing), the
-growth of the process's peak resident set size over one N-step gradient of mean |F|, after a 50-step warm-up.
+growth of the process's peak resident set size over one N-step gradient of mean |F|, after a 50-step warm-up (on a
+GPU, the growth of the device's peak allocated memory).
+
+``--device cuda`` runs every variant but ``cpu`` on the GPU; each timed rollout ends with the device's queue drained
+(``torch.cuda.synchronize``).
 
 ``--profile`` prints, for each scene and variant, where a warm forward rollout spends its time: ``torch.profiler``'s
 operators by self time, and for a compiled variant inductor's generated kernels (``cpp.enable_kernel_profile``).
@@ -61,7 +67,7 @@ SCENES = {  # slice2d and fine3d with the default numerics (FLIP share, packing 
     "fine3d": dict(dim=3, dx=0.005, sound_speed=10.0, settle_time=0.3),
     "slice2d": dict(dim=2, dx=0.0025, sound_speed=1.0),
 }
-VARIANTS = ["eager", "unfused", "compiled", "compiled-unfused", "projection", "walls", "reference"]
+VARIANTS = ["eager", "unfused", "compiled", "compiled-unfused", "projection", "walls", "cpu", "reference"]
 HORIZON = 8000  # steps: the paper's 8 s recording at 1 ms
 
 
@@ -78,8 +84,8 @@ def import_reference(tree: Path):
             for name in ("mpm", "rheology", "rig", "trajectory")}
 
 
-def build(variant: str, scene: str, reference) -> tuple:
-    """The simulator, trajectory and settled start of one variant."""
+def build(variant: str, scene: str, reference, device: str = "cpu") -> tuple:
+    """The simulator and trajectory function of one variant, on ``device`` (the ``cpu`` variant on the CPU)."""
     modules = reference if variant == "reference" else {
         "mpm": importlib.import_module("diffstir.mpm"), "rheology": importlib.import_module("diffstir.rheology"),
         "rig": importlib.import_module("diffstir.rig"), "trajectory": importlib.import_module("diffstir.trajectory")}
@@ -95,6 +101,8 @@ def build(variant: str, scene: str, reference) -> tuple:
         settings["wall_pressure"] = True
     if variant == "unfused":
         settings["kernels"] = "torch"
+    if "device" in known:
+        settings["device"] = "cpu" if variant == "cpu" else device
     law = modules["rheology"].Carreau(eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
     sim = modules["mpm"].StirringSimulator(law, modules["rig"].Rig(), modules["mpm"].SimConfig(**settings),
                                            density=1000.0)
@@ -108,6 +116,8 @@ def rollout(sim, trajectory, initial, grad: bool) -> float:
         result = sim(trajectory, initial=initial)
         if grad:
             result.force.abs().mean().backward()
+    if result.force.is_cuda:
+        torch.cuda.synchronize()
     return time.perf_counter() - start
 
 
@@ -132,36 +142,51 @@ def saved_bytes(sim, trajectory, initial) -> tuple[float, float]:
     return sum(storages.values()) / steps, state
 
 
-def profile(variant: str, scene: str, reference, steps: int) -> None:
+def profile(variant: str, scene: str, reference, steps: int, device: str) -> None:
     """Print the operators (and a compiled variant's kernels) of one warm forward rollout of ``steps`` steps by self
     time."""
     from torch.profiler import ProfilerActivity
     from torch.profiler import profile as torch_profile
 
     torch._inductor.config.cpp.enable_kernel_profile = True  # compiled kernels appear by name
-    sim, circle_fn = build(variant, scene, reference)
+    sim, circle_fn = build(variant, scene, reference, device)
     dt = sim.time_step(circle_fn(0.015, 0.1, 1.0, ramp_time=0.2))
     trajectory = circle_fn(0.015, 0.1, steps * dt, ramp_time=0.2)
     initial = sim.initial_state(trajectory)
     rollout(sim, trajectory, initial, False)  # warm-up and compilation
-    with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if sim.config.device != "cpu" else [])
+    with torch_profile(activities=activities) as prof:
         seconds = rollout(sim, trajectory, initial, False)
     print(f"{scene}, {variant}: {1e3 * seconds / steps:.2f} ms/step under the profiler, {steps} steps")
     print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=12, max_name_column_width=90))
 
 
-def gradient_memory(scene: str, steps: int) -> None:
-    """Print the growth of peak RSS [MiB] over one ``steps``-step gradient of the ``eager`` variant of ``scene``."""
-    sim, circle_fn = build("eager", scene, None)
+def peak_memory(device: str) -> float:
+    """The process's peak resident set size [MiB], or on a GPU the device's peak allocated memory."""
+    if device == "cpu":
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return torch.cuda.max_memory_allocated() / 2**20
+
+
+def gradient_memory(scene: str, steps: int, device: str) -> None:
+    """Print the growth of peak memory [MiB] over one ``steps``-step gradient of the ``eager`` variant of
+    ``scene``."""
+    sim, circle_fn = build("eager", scene, None, device)
     dt = sim.time_step(circle_fn(0.015, 0.1, 1.0, ramp_time=0.2))
     warm, full = (circle_fn(0.015, 0.1, n * dt, ramp_time=0.2) for n in (50, steps))
     initial = sim.initial_state(full)
     rollout(sim, warm, initial, grad=True)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    before = peak_memory(device)
     wall = rollout(sim, full, initial, grad=True)
-    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    after = peak_memory(device)
     print(f"| {scene} | {steps} | {sim.config.checkpoint_every} | {before:.0f} | {after:.0f} | {after - before:.0f} "
           f"| {wall:.0f} |", flush=True)
+
+
+def machine(device: str) -> str:
+    """The CPU, and the GPU where ``device`` names one."""
+    cpu = f"{platform.machine()}, {os.cpu_count()} CPUs"
+    return cpu if device == "cpu" else f"{cpu}, {torch.cuda.get_device_name(torch.device(device))}"
 
 
 def main() -> None:
@@ -174,6 +199,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gradient-steps", type=int, help="measure the peak memory of one gradient this long")
     parser.add_argument("--profile", action="store_true", help="print where a forward rollout spends its time")
+    parser.add_argument("--device", default="cpu", help="torch device of every variant but 'cpu', e.g. cuda")
     args = parser.parse_args()
     if "reference" in args.variants and args.reference_tree is None:
         parser.error("the 'reference' variant needs --reference-tree DIR")
@@ -182,17 +208,19 @@ def main() -> None:
     if args.profile:
         for scene in args.scenes:
             for variant in args.variants:
-                profile(variant, scene, reference, args.steps)
+                profile(variant, scene, reference, args.steps, args.device)
         return
     if args.gradient_steps:
-        print(f"{datetime.date.today()}, torch {torch.__version__}, {args.threads} thread(s), float32, eager")
-        print("| scene | steps | checkpoint segment | peak RSS before [MiB] | after [MiB] | growth [MiB] | wall [s] |")
+        print(f"{datetime.date.today()}, torch {torch.__version__}, {args.threads} thread(s), float32, eager, "
+              f"{machine(args.device)}")
+        peak = "peak RSS" if args.device == "cpu" else "peak GPU memory"
+        print(f"| scene | steps | checkpoint segment | {peak} before [MiB] | after [MiB] | growth [MiB] | wall [s] |")
         print("|---|---|---|---|---|---|---|")
         for scene in args.scenes:
-            gradient_memory(scene, args.gradient_steps)
+            gradient_memory(scene, args.gradient_steps, args.device)
         return
     load = os.getloadavg()[0]
-    print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average {load:.1f} at start, "
+    print(f"{datetime.date.today()}, {machine(args.device)}, load average {load:.1f} at start, "
           f"torch {torch.__version__}, {args.threads} thread(s), float32, {args.steps} steps per rollout, "
           f"fastest of {args.repeats}")
     print("| scene | particles | grid | dt [ms] | variant | forward [ms/step] | fwd+bwd [ms/step] "
@@ -202,7 +230,7 @@ def main() -> None:
     for scene in args.scenes:
         runs = {}
         for variant in args.variants:
-            sim, circle_fn = build(variant, scene, reference)
+            sim, circle_fn = build(variant, scene, reference, args.device)
             dt = sim.time_step(circle_fn(0.015, 0.1, 1.0, ramp_time=0.2))
             trajectory = circle_fn(0.015, 0.1, args.steps * dt, ramp_time=0.2)
             initial = sim.initial_state(trajectory)

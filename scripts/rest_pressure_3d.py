@@ -2,7 +2,8 @@
 
 The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` seconds around the still rod. Printed:
 
-* the mean vertical force on the rod against the buoyancy ρ g V of its immersed volume;
+* the mean vertical force on the rod against the buoyancy ρ g V of its immersed volume, to the fill height and
+  below the free surface as it stands (the weakly compressible fluid's column sinks by a few per cent);
 * the particles' pressure p = −κ/2 (J − 1/J) (κ = ρ c²) in layers one cell thick, far from the rod (the outer
   half of the gap between rod and wall, a cell clear of the wall) and under the rod's tip, against the
   hydrostatic ρ g (h_s − z), h_s the free surface's height far from the rod;
@@ -17,7 +18,7 @@ The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` sec
 * who holds the fluid's weight: the cup's bottom and wall (the momentum their boundary condition takes from the
   fluid mass on their nodes), with ``--wall-pressure`` the cup's boundary particles, and the rod.
 
-    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2] [--wall-pressure]
+    python scripts/rest_pressure_3d.py [--dx 0.01] [--hold 0.02] [--settle 0.2] [--wall-pressure] [--device cuda]
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import math
 import platform
+import time
 from collections import defaultdict
 from datetime import datetime, timezone
 
@@ -49,19 +51,25 @@ def main() -> None:
     parser.add_argument("--settle", type=float, default=0.2, help="settling time [s]")
     parser.add_argument("--wall-pressure", action="store_true", help="boundary particles in the solids carry the "
                         "fluid's pressure (SimConfig.wall_pressure)")
+    parser.add_argument("--device", default="cpu", help="torch device (SimConfig.device), e.g. cuda")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.machine()}, torch {torch.__version__}, "
+    device = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"{platform.machine()}, 1 thread"
+    print(f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {device}, torch {torch.__version__}, "
           f"dx = {args.dx} m, settle {args.settle} s, hold {args.hold} s, wall pressure {args.wall_pressure}")
     rig = Rig()
     rod, g = rig.rod, rig.gravity
     cfg = SimConfig(dim=3, dx=args.dx, sound_speed=SOUND_SPEED, settle_time=args.settle,
-                    wall_pressure=args.wall_pressure)
+                    wall_pressure=args.wall_pressure, device=args.device)
     sim = StirringSimulator(Newtonian(eta=0.2), rig, cfg, density=DENSITY)
     trajectory = stationary(args.hold)
+    start = time.perf_counter()
     settled = sim.initial_state(trajectory)
+    settling = time.perf_counter() - start
     with torch.no_grad():
         result = sim(trajectory)
+    print(f"{settled.num_particles} particles, settled in {settling:.0f} s (or loaded from the cache), held "
+          f"{len(result.times)} steps of {result.dt * 1e3:.3f} ms in {time.perf_counter() - start - settling:.0f} s")
     buoyancy = DENSITY * g * math.pi * rod.radius ** 2 * rod.immersion_depth
     print(f"vertical force on the rod {result.force[:, 2].mean().item():+.4f} N, buoyancy ρ g V {buoyancy:.4f} N")
 
@@ -71,6 +79,9 @@ def main() -> None:
     surface = float(x[far, 2].max())
     tip = rig.cup.fill_height - rod.immersion_depth
     kappa = DENSITY * SOUND_SPEED ** 2
+    sunken = DENSITY * g * math.pi * rod.radius ** 2 * (surface - tip)
+    print(f"the same against ρ g V below the free surface far from the rod (h_s = {surface:.5f} m), {sunken:.4f} N: "
+          f"{result.force[:, 2].mean().item() / sunken:.4f}")
 
     def pressure(mask) -> str:
         j = J[mask]

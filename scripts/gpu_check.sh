@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# The simulator on a CUDA GPU (docs/benchmarks.md, "On a GPU"; docs/validation.md, "Boundary particles"):
+#   1. the CUDA tests (tests/test_cuda.py, the rheology laws on cuda): the GPU gives the CPU's forces, gradients and
+#      sensitivities;
+#   2. ms per step forward and forward+backward on the GPU, next to the eager step on the CPU in the same process;
+#   3. the 3-D rod's buoyancy at rest with boundary particles on 2.5 mm cells (the CPU's figure, 0.348 N, to check the
+#      GPU against) and on 1.25 mm cells (the convergence the CPU could not afford), the latter cut off
+#      DEADLINE seconds after the script's start.
+#
+#   scripts/gpu_check.sh OUT_DIR [DEADLINE]
+#
+# Runs from the repository root with the diffstir package on PYTHONPATH (no install needed); writes each part's
+# output to OUT_DIR.
+set -uo pipefail
+out=${1:?usage: scripts/gpu_check.sh OUT_DIR [DEADLINE]}
+deadline=${2:-1200}
+mkdir -p "$out"
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 DIFFSTIR_CACHE_DIR="${TMPDIR:-/tmp}/diffstir-gpu-check"
+start=$(date +%s)
+lap() { echo "== $1: $(( $(date +%s) - start )) s since the start"; }
+
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$out/gpu.txt"
+python3 -c "import torch, sys; print('python', sys.version.split()[0], 'torch', torch.__version__)" | tee -a "$out/gpu.txt"
+lap "tests"
+python3 -m pytest -q -p no:cacheprovider tests/test_cuda.py 2>&1 | tee "$out/tests.txt"
+python3 -m pytest -q -p no:cacheprovider tests/test_rheology_laws.py -k cuda 2>&1 | tee -a "$out/tests.txt"
+lap "benchmark"
+python3 scripts/benchmark_simulator.py --device cuda --scenes paper3d slice2d --variants eager walls cpu \
+    --repeats 2 2>&1 | tee "$out/benchmark.txt"
+lap "rest, 2.5 mm"
+python3 scripts/rest_pressure_3d.py --dx 0.0025 --hold 0.05 --wall-pressure --device cuda 2>&1 \
+    | tee "$out/rest_2.5mm.txt"
+lap "rest, 1.25 mm"
+timeout $(( deadline - $(date +%s) + start )) python3 scripts/rest_pressure_3d.py --dx 0.00125 --hold 0.05 --wall-pressure --device cuda \
+    2>&1 | tee "$out/rest_1.25mm.txt"
+lap "done"
