@@ -20,8 +20,8 @@ compression. --numerics runs only the numerics whose labels start with the given
   either side of it; steady force per unit length against 4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)].
 - buoyancy2d: the rod held still 15 mm off centre under a body force of 1 m/s² along x (standing in for gravity,
   which a horizontal slice lacks); steady force per unit length against -rho g pi a^2 (a sound speed of 2 m/s).
-- convergence: the Newtonian and power-law Couette checks and the 1 Pa s translating rod of the fitting default on 5,
-  2.5, 2 and 1.6 mm cells (not run by default).
+- convergence: the Newtonian and power-law Couette checks and the 0.5 and 1 Pa s translating rod of the fitting
+  default on 5, 2.5, 2, 1.67 and 1.25 mm cells (not run by default).
 - rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): the fluid's volume by its particles'
   J (sum J V0), the height of its centre of mass (at rest neither may change), and the vertical force against
   rho g V_immersed.
@@ -58,6 +58,7 @@ import math
 import os
 import platform
 import sys
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -302,9 +303,10 @@ def main() -> None:
         "translate": lambda: [translating(config, label, mu) for mu in (0.5, 1.0, 3.0)
                               for label, config in configs.items()],
         "buoyancy2d": lambda: [buoyancy_2d(config, label) for label, config in configs.items()],
-        "convergence": lambda: [check(DEFAULT.replace(dx=dx), f"default, dx = {dx * 1e3:g} mm")
-                                for dx in (0.005, 0.0025, 0.002, 0.0016)
-                                for check in (couette, power_law_couette, translating)],
+        "convergence": lambda: [check(DEFAULT.replace(dx=dx), f"default, dx = {dx * 1e3:.3g} mm")
+                                for dx in (0.005, 0.0025, 0.002, 0.0025 / 1.5, 0.00125)
+                                for check in (couette, power_law_couette, partial(translating, mu=0.5),
+                                              translating)],
         "rest3d": lambda: rest3d(args.rest_time),
     }
     closed = [name for name in args.checks if name in checks]
