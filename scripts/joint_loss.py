@@ -8,6 +8,11 @@ grid, sensor preset, noise seed and speeds, with the same options); every consta
 (``SimConfig.compressibility``). ``--save`` writes the lab recording, ``--recording`` reads it back instead of
 simulating the truth again.
 
+Besides the loss and the rms residual, each law's rms residual after the best amplitude per speed window
+(a_w = p_w·m_w / p_w·p_w, the least-squares scale of the simulated readings p_w onto the measured m_w) and those
+amplitudes: what is left when the simulator's force error is an amplitude per speed, as the model error σ_m
+assumes; where a law's waveform itself is off, the rescaled residual stays above the other laws'.
+
     python scripts/joint_loss.py --fluid bingham --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \\
         --truth-dx 0.004 --law bingham:tau_y=3,eta_p=0.1 power_law:k=2.73,n=0.12
 """
@@ -40,6 +45,18 @@ def parse_law(text: str) -> FitModel:
     return FitModel.named(name, **{key: float(value) for key, value in pairs})
 
 
+def per_window_amplitudes(predicted: np.ndarray, measured: np.ndarray,
+                          windows: list[np.ndarray]) -> tuple[list[float], np.ndarray]:
+    """The least-squares amplitude a_w = p·m / p·p of the simulated readings ``predicted`` [N] onto ``measured`` [N]
+    in each window (sample indices ``windows``), and the readings rescaled by them [N]."""
+    rescaled, amplitudes = predicted.copy(), []
+    for index in windows:
+        p = predicted[index]
+        amplitudes.append(float(p @ measured[index] / (p @ p)))
+        rescaled[index] = amplitudes[-1] * p
+    return amplitudes, rescaled
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fluid", default="bingham", choices=list(FLUIDS))
@@ -60,18 +77,24 @@ def main() -> None:
         print(f"lab recording: {time.perf_counter() - t0:.0f} s")
         if args.save is not None:
             save_recording(recording, args.save, overwrite=True)
-    problem = JointProblem(speed_windows(recording), fit_config, combined_density([recording], None)["value"])
+    windows = speed_windows(recording)
+    problem = JointProblem(windows, fit_config, combined_density([recording], None)["value"])
+    times = problem.problems[0].times[problem.masks[0]]
+    in_window = [np.flatnonzero((times > w.start) & (times <= w.end)) for w in windows]
     print(f"{args.fluid} ({FLUIDS[args.fluid][1]}), fitted on {args.fit_sim}; {problem.measured.size} samples in "
           f"the windows, mean |reading| {np.mean(np.abs(problem.measured)):.5f} N\n")
-    print("| law | parameters (SI) | loss [N] | rms residual [N] | s |")
-    print("|---|---|---|---|---|")
+    print("| law | parameters (SI) | loss [N] | rms residual [N] | rms after an amplitude per window [N] | "
+          "amplitudes | s |")
+    print("|---|---|---|---|---|---|---|")
     for model in models:
         t0 = time.perf_counter()
         reading = Readings(problem, model)(model.theta())
         rest = reading - problem.measured
+        amplitudes, rescaled = per_window_amplitudes(reading, problem.measured, in_window)
         params = ", ".join(f"{k} {v:.4g}" for k, v in model.params_si().items())
         print(f"| {model.name} | {params} | {problem.loss(reading):.5f} | {np.sqrt(np.mean(rest**2)):.5f} | "
-              f"{time.perf_counter() - t0:.0f} |", flush=True)
+              f"{np.sqrt(np.mean((rescaled - problem.measured)**2)):.5f} | "
+              f"{', '.join(f'{a:.3f}' for a in amplitudes)} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 
 if __name__ == "__main__":
