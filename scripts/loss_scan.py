@@ -56,7 +56,7 @@ def main() -> None:
         t0 = time.perf_counter()
         held = problem.frozen(FitModel.named("newtonian", eta=eta_c).material)
         reading = Readings(held, FitModel.named("newtonian", eta=eta))(np.log([eta]))
-        print(f"| {eta:g} | {eta_c:g} | {held.config.sound_speed:.3f} | {problem.mean_reading(reading):.5f} | "
+        print(f"| {eta:g} | {eta_c:g} | {held.config.fixed_sound_speed:.3f} | {problem.mean_reading(reading):.5f} | "
               f"{problem.loss(reading):.5f} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 

@@ -238,8 +238,8 @@ def test_a_physics_fit_goes_on_at_the_sound_speed_of_where_it_moved():
     model = PhysicsModel(PHYSICS_CANDIDATES["wall_slip"], ctx.law, ctx)
     replay = CachedReplay(problem.frozen(model.material), model)
     replay.simulations = 4
-    c0 = replay.problem.config.sound_speed
-    assert c0 > 1.0 and replay.problem.config.compressibility is None
+    c0 = replay.problem.config.fixed_sound_speed
+    assert c0 > 1.0 and replay.problem.config.rollout_sound_speed == c0
     near = model.theta()
     near[0] = math.log(1 + SOUND_SPEED_TOLERANCE)  # c up by half the tolerance
     model.set_theta(near)
@@ -249,7 +249,7 @@ def test_a_physics_fit_goes_on_at_the_sound_speed_of_where_it_moved():
     model.set_theta(far)
     fresh = refrozen(replay, problem, model)
     assert fresh is not replay and fresh.simulations == 4 and fresh.cache == {}
-    assert fresh.problem.config.sound_speed == pytest.approx(c0 * math.sqrt(1.1), rel=1e-5)
+    assert fresh.problem.config.fixed_sound_speed == pytest.approx(c0 * math.sqrt(1.1), rel=1e-5)
 
 
 def test_needs_diagnosis_tells_structure_from_noise():

@@ -280,7 +280,7 @@ def refrozen(replay: CachedReplay, problem, model) -> CachedReplay:
     residual (castor oil's concealed slip at its truth: 2.54 mN of loss at its own c, 3.11 mN at the c of the
     identified viscosity, 13 % lower, so c 7 % lower; docs/diagnosis.md)."""
     frozen = problem.frozen(model.material)
-    if abs(frozen.config.sound_speed / replay.problem.config.sound_speed - 1.0) <= SOUND_SPEED_TOLERANCE:
+    if abs(frozen.config.fixed_sound_speed / replay.problem.config.fixed_sound_speed - 1.0) <= SOUND_SPEED_TOLERANCE:
         return replay
     fresh = CachedReplay(frozen, model)
     fresh.simulations = replay.simulations

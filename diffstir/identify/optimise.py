@@ -228,7 +228,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
     elif model.name == "corotated":  # its apparent viscosity μ Δt must keep the fixed step stable: the viscous
         # number 2 d μ Δt² / (ρ Δx²) within what the acoustic number c Δt / Δx leaves of 1 (a trial step at
         # μ = 1860 Pa, Δt = 1.79 ms, Δx = 5 mm, c = 1 m/s blew up; this bound is 1300 Pa there)
-        room = max(1.0 - cfg.sound_speed * model.dt / cfg.dx, 0.0)
+        room = max(1.0 - cfg.fixed_sound_speed * model.dt / cfg.dx, 0.0)
         mu_max = cfg.viscous_safety * room * problem.density * cfg.dx ** 2 / (2 * cfg.dim * model.dt ** 2)
         model.upper[0] = min(model.upper[0], math.log(max(mu_max, 1e-12)))
     if sensor.fitted and optimizer != "lm":

@@ -120,11 +120,13 @@ class StirProblem:
         """This problem with the sound speed that ``material`` gets (``SimConfig.compressibility``) held fixed: a
         fit's evaluations then simulate the same bulk modulus and, below the viscous limit, the same number of
         steps, so that its readings vary smoothly with the parameters (a sound speed that followed them changed the
-        step count, and finite-difference Jacobians over 1e-3 in ln η read noise)."""
-        if self.config.compressibility is None:
+        step count, and finite-difference Jacobians over 1e-3 in ln η read noise). The fluid still settles at the
+        least sound speed, as it does unheld (``SimConfig.rollout_sound_speed``): ``material`` reads here what it
+        reads in ``self``."""
+        if self.config.compressibility is None or self.config.rollout_sound_speed is not None:
             return self
         c = self.simulator(material).sound_speed(self.trajectory)
-        return self.with_config(replace(self.config, sound_speed=c, compressibility=None))
+        return self.with_config(replace(self.config, rollout_sound_speed=c))
 
     def simulator(self, material: nn.Module) -> StirringSimulator:
         """The simulator of this recording's rig for a material (a rheology law or a material module)."""

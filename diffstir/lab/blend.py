@@ -198,7 +198,7 @@ def simulate_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = No
     sim = StirringSimulator(material, rig, sim_config, density=blend.density, cache_dir=cache_dir)
     # one step and one sound speed for every chunk: the sensor model needs uniform times
     dt = sim.time_step(trajectory)
-    sim.config = replace(sim.config, dt=dt, sound_speed=sim.sound_speed(trajectory), compressibility=None)
+    sim.config = replace(sim.config, dt=dt, rollout_sound_speed=sim.sound_speed(trajectory))
     scene = sim.scene
     state = sim.initial_state(trajectory)
     c = initial_concentration(state.x, blend.layout, blend.fraction)

@@ -28,6 +28,11 @@ class SimConfig:
             top speed U and the law's viscosity at the shear rate U/a. A viscous stir's pressure, not its Mach
             number, is what compresses the fluid: at the former 1 m/s a 1 Pa·s stir at 0.1 m/s compressed it by
             13 % and read 27 % low against an incompressible reference (docs/validation.md).
+        rollout_sound_speed: the sound speed of every rollout [m/s], held fixed in place of the ``compressibility``
+            rule (a fit holds the one its starting law gets: ``identify.StirProblem.frozen``), or None. The fluid
+            settles at ``sound_speed`` either way, so that a rollout at a held sound speed starts from the state the
+            rule's rollout starts from (on the 5 mm grid a stir at 0.6 m/s read 12 % apart from two states settled
+            at 1 and 3.6 m/s, docs/validation.md).
         cfl: acoustic Courant number, ``dt <= cfl * dx / (sound_speed + max rod speed)``.
         viscous_safety: fraction of the explicit viscous limit ``density * dx**2 / (2 * dim * eta_max)`` used.
         viscosity_cap: the largest apparent viscosity simulated [Pa·s]; a law's viscosity above it is clamped (the
@@ -75,6 +80,7 @@ class SimConfig:
     particles_per_cell: int = 2
     sound_speed: float = 10.0
     compressibility: float | None = None
+    rollout_sound_speed: float | None = None
     cfl: float = 0.4
     viscous_safety: float = 0.9
     viscosity_cap: float = 20.0
@@ -120,6 +126,9 @@ class SimConfig:
         if self.wall_pressure and self.pressure == "projection":
             raise ValueError("sim.wall_pressure = true continues the particles' pressure into the solids; with "
                              "sim.pressure = 'projection' the particles carry none: set one of them back")
+        if self.rollout_sound_speed is not None and not self.rollout_sound_speed > 0:
+            raise ValueError(f"sim.rollout_sound_speed = {self.rollout_sound_speed!r}; expected a speed > 0 in m/s, "
+                             "or null to follow sim.compressibility")
         if self.compressibility is not None and not 0 < self.compressibility < 0.5:
             raise ValueError(f"sim.compressibility = {self.compressibility!r}; expected a relative density change "
                              "between 0 and 0.5 (e.g. 0.01), or null to keep sim.sound_speed")
@@ -133,6 +142,14 @@ class SimConfig:
     @property
     def torch_dtype(self) -> torch.dtype:
         return torch.float32 if self.dtype == "float32" else torch.float64
+
+    @property
+    def fixed_sound_speed(self) -> float | None:
+        """The sound speed [m/s] of every rollout where it does not follow the stir (``rollout_sound_speed``, or
+        ``sound_speed`` without ``compressibility``), else None."""
+        if self.rollout_sound_speed is not None:
+            return self.rollout_sound_speed
+        return self.sound_speed if self.compressibility is None else None
 
     @property
     def torch_device(self) -> torch.device:
