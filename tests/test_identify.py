@@ -170,7 +170,7 @@ def test_a_held_sound_speed_reads_what_the_stir_reads(newtonian_recording):
     """A fit holds the sound speed its starting law gets (``StirProblem.frozen``), and the fluid still settles at
     the least one: at that law the held problem reads exactly what the unheld one reads. (Held by setting the
     least sound speed, the fluid had settled at the raised one, and on the 5 mm grid a 0.6 m/s stir read 12 %
-    apart, docs/validation.md.)"""
+    apart, docs/identification.md step 5.)"""
     config = replace(FAST, sound_speed=0.5, compressibility=0.03, settle_time=0.05)
     problem = StirProblem(newtonian_recording, config, 1000.0)
     law = Newtonian(eta=TRUE_ETA)

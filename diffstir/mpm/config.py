@@ -32,7 +32,7 @@ class SimConfig:
             rule (a fit holds the one its starting law gets: ``identify.StirProblem.frozen``), or None. The fluid
             settles at ``sound_speed`` either way, so that a rollout at a held sound speed starts from the state the
             rule's rollout starts from (on the 5 mm grid a stir at 0.6 m/s read 12 % apart from two states settled
-            at 1 and 3.6 m/s, docs/validation.md).
+            at 1 and 3.6 m/s, docs/identification.md step 5).
         cfl: acoustic Courant number, ``dt <= cfl * dx / (sound_speed + max rod speed)``.
         viscous_safety: fraction of the explicit viscous limit ``density * dx**2 / (2 * dim * eta_max)`` used.
         viscosity_cap: the largest apparent viscosity simulated [Pa·s]; a law's viscosity above it is clamped (the
