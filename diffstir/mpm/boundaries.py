@@ -139,15 +139,24 @@ class MeshRod(RodShape):
         self.phi = torch.tensor(phi)
         self.gradient = torch.tensor(np.stack(np.gradient(phi, spacing), axis=-1))
         self.radius = float(np.max(np.linalg.norm(mesh.vertices[:, :2], axis=-1)))
+        self._fields: dict[tuple, tuple[Grid, Tensor, Tensor]] = {}
+
+    def _field(self, like: Tensor) -> tuple[Grid, Tensor, Tensor]:
+        """The sampled φ and ∇φ as (nodes, 4) on ``like``'s device and dtype, their grid and the value outside it,
+        converted once per device and dtype."""
+        key = (like.device, like.dtype)
+        if key not in self._fields:
+            field = torch.cat([self.phi[..., None], self.gradient], -1).to(like).reshape(-1, 4)
+            samples = Grid(origin=self.origin.to(like), shape=tuple(self.phi.shape), dx=self.spacing)
+            outside = torch.tensor([4 * self.spacing, 0, 0, 0], dtype=like.dtype, device=like.device)
+            self._fields[key] = samples, field, outside
+        return self._fields[key]
 
     def sdf(self, local: Tensor) -> tuple[Tensor, Tensor]:
         if local.shape[1] != 3:
             raise ValueError("a mesh rod needs sim.dim = 3")
-        field = torch.cat([self.phi[..., None], self.gradient], -1).to(local)
-        samples = Grid(origin=self.origin.to(local), shape=tuple(self.phi.shape), dx=self.spacing)
-        sample = interpolate_linear(samples, field.reshape(-1, 4), local,
-                                    outside=torch.tensor([4 * self.spacing, 0, 0, 0], dtype=local.dtype,
-                                                         device=local.device))
+        samples, field, outside = self._field(local)
+        sample = interpolate_linear(samples, field, local, outside=outside)
         normal = sample[:, 1:] / sample[:, 1:].norm(dim=-1, keepdim=True).clamp_min(1e-12)
         return sample[:, 0], normal
 
