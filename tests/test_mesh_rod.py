@@ -60,7 +60,7 @@ def test_a_cylinder_mesh_has_the_cylinders_signed_distance_and_normal(cylinder_m
 def test_a_stir_with_the_cylinder_mesh_reads_the_cylinder(cylinder_mesh):
     """The paper's 3-D grid, a short stir: the mesh rod and the cylinder rod give the same drag within 5 %: the
     sampled surface lies within h / 10 = 0.25 mm of the cylinder's (above), 2 % of its radius, and a rod's drag
-    goes as its radius to a power of 1-3 in the closed forms (0.12 % apart, measured). The mesh's sampled field is
+    goes as its radius to a power of 1-3 in the closed forms. The mesh's sampled field is
     converted to the particles' device and precision once, not at every step."""
     config = SimConfig(dim=3, dx=0.01, sound_speed=4.5, settle_time=0.1)
     trajectory = circle(radius=0.015, speed=0.05, duration=0.05, ramp_time=0.02)
