@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from diffstir.behaviour import characterise, write_behaviour_report
-from diffstir.behaviour.joint import PASTE_SHARES, JointProblem, screened_pastes
+from diffstir.behaviour.joint import PASTE_SHARES, JointProblem, paste_start, screened_starts
 from diffstir.behaviour.windows import speed_windows
-from diffstir.identify import StirProblem
+from diffstir.identify import FitModel, StirProblem
 from diffstir.parallel import Workers
 from diffstir.recording import Recording
 from diffstir.rheology import FlowCurve, make_law
@@ -65,7 +65,62 @@ def test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress():
     windows = speed_windows(recording)
     rate = np.array([w.speed / recording.rod.radius for w in windows])
     curve = FlowCurve(rate, 2.0 + 0.01 * rate)
+    candidates = {"bingham": {f"paste{share:g}": paste_start("bingham", curve, share) for share in PASTE_SHARES}}
     with Workers(1, report=lambda event: None) as pool:
-        start = screened_pastes(pool, JointProblem(windows, FAST, DENSITY), ["bingham"], curve)["bingham"]
-    assert max(PASTE_SHARES) == pytest.approx(0.9)
-    assert start.params_si()["tau_y"] == pytest.approx(0.9 * curve.stress.min(), rel=1e-4)
+        kept = screened_starts(pool, JointProblem(windows, FAST, DENSITY), candidates)["bingham"]
+    assert max(PASTE_SHARES) == pytest.approx(0.9) and kept.label == "paste0.9"
+    # kept with its stress scaled by its readings' amplitude on the measured ones
+    assert kept.model.params_si()["tau_y"] == pytest.approx(0.9 * curve.stress.min() * kept.amplitude, rel=1e-4)
+
+
+class StressReadings:
+    """A stand-in for ``JointProblem`` whose readings scale with the stress exactly, as a Stokes drag's do: in each
+    of three windows the law's stress at that window's shear rate [Pa] times a unit sinusoid [N/Pa]."""
+
+    RATES = np.array([2.0, 8.0, 30.0])  # 1/s
+
+    def __init__(self, truth):
+        self.times = np.linspace(0.0, 1.0, 50)
+        self.measured = self.simulate(truth).numpy()
+
+    def simulate(self, law) -> torch.Tensor:
+        with torch.no_grad():
+            stress = (law(torch.as_tensor(self.RATES, dtype=torch.float64)) * torch.as_tensor(self.RATES)).numpy()
+        return torch.as_tensor(np.concatenate([tau * np.sin(2 * np.pi * self.times) for tau in stress]))
+
+    def loss(self, predicted, train=True) -> float:
+        return float(np.mean(np.abs(self.measured - predicted)))
+
+
+def test_a_start_of_the_right_shape_at_the_wrong_scale_beats_a_wrong_shape_at_the_right_one():
+    """Where the fitting grid reads every law too high, a start with the truth's flow curve reads worse than one with
+    the wrong curve at the measured size; scaled by its readings' amplitude it reads the truth (docs/accuracy.md)."""
+    truth = FitModel.named("herschel_bulkley", tau_y=3.0, k=0.1, n=1.0)
+    problem = StressReadings(truth.material)
+    candidates = {"herschel_bulkley": {"right shape, 1.3 times the stress": truth.stress_scaled(1.3),
+                                       "power law of index 0.3": FitModel.named("herschel_bulkley", tau_y=1e-3,
+                                                                                k=2.4, n=0.3)}}
+    right, wrong = candidates["herschel_bulkley"].values()
+    unscaled = {label: problem.loss(problem.simulate(m.material).numpy())
+                for label, m in candidates["herschel_bulkley"].items()}
+    assert unscaled["right shape, 1.3 times the stress"] > unscaled["power law of index 0.3"]
+    with Workers(1, report=lambda event: None) as pool:
+        kept = screened_starts(pool, problem, candidates)["herschel_bulkley"]
+    assert kept.label == "right shape, 1.3 times the stress"
+    assert kept.amplitude == pytest.approx(1 / 1.3, rel=1e-5)  # float32 parameters
+    for name, value in truth.params_si().items():
+        assert kept.model.params_si()[name] == pytest.approx(value, rel=1e-5)
+
+
+def test_a_stress_scale_multiplies_every_laws_stress():
+    rate = np.logspace(-2, 2, 9)
+    for name, params in [("newtonian", {"eta": 0.5}), ("power_law", {"k": 2.0, "n": 0.4}),
+                         ("carreau", {"eta0": 1.0, "eta_inf": 0.01, "lam": 0.5, "n": 0.6}),
+                         ("cross", {"eta0": 1.0, "eta_inf": 0.01, "lam": 0.5, "n": 0.6}),
+                         ("herschel_bulkley", {"tau_y": 3.0, "k": 0.5, "n": 0.7}),
+                         ("bingham", {"tau_y": 3.0, "eta_p": 0.1})]:
+        model = FitModel.named(name, **params)
+        eta, _ = model.viscosity(rate)
+        np.testing.assert_allclose(model.stress_scaled(0.7).viscosity(rate)[0], 0.7 * eta, rtol=1e-6)
+    with pytest.raises(ValueError, match="> 0"):
+        model.stress_scaled(0.0)

@@ -5,12 +5,15 @@ A single speed probes a narrow band of shear rates, so Carreau's and Cross's λ 
 from its fit to the per-speed apparent viscosities (``rheology.fit_flow_curve`` on (γ̇_i, η_i γ̇_i) with weights
 1/σ_i²; with no more points than parameters, from ``identify.initial.initial_model``) and takes a few Gauss-Newton
 steps through the simulator (``identify.fit_model``) on the readings of all windows. A law with a yield stress also
-starts as a paste (``paste_start``: a share ``PASTE_SHARES`` of the lowest speed's stress is yield stress, each
-share simulated once and the one of least loss fitted), and the start with the lower loss is kept, as ``identify``
-does: the per-speed points of a yield-stress fluid barely bend (``classify``), so their flow curve starts the yield
-stress near zero, where its logarithmic parameter hardly moves the readings. The paste's stresses are those of the
-best joint fit without a yield stress, once it is done, else the points': the points are Newtonian equivalents,
-which put a paste's stress at the fastest speed too high. A law with a yield stress also starts from that best
+starts as a paste (``paste_start``: a share ``PASTE_SHARES`` of the lowest speed's stress is yield stress), and the
+start with the lower loss is kept, as ``identify`` does: the per-speed points of a yield-stress fluid barely bend
+(``classify``), so their flow curve starts the yield stress near zero, where its logarithmic parameter hardly moves
+the readings. The paste's stresses are those of the best joint fit without a yield stress, once it is done, else
+the points': the points are Newtonian equivalents, which put a paste's stress at the fastest speed too high. The
+pastes and the points' own flow curve are screened (``screened_starts``): each simulated once, its stress scaled by
+the least-squares amplitude of its readings on the measured ones, and the one that then reads closest kept. Where
+the fitting grid reads every law 20-25 % high, as the 5 mm grid does at 0.3-0.6 m/s, the right shape at the wrong
+scale otherwise reads worse than a wrong shape at the right one (docs/accuracy.md). A law with a yield stress also starts from that best
 liquid fit itself, with a yield stress of ``TRACE_YIELD_SHARE`` of its lowest stress (``LIQUID_START_ITERATIONS``
 steps): a law that contains the liquid law then ends no worse than it, so that BIC, not the optimiser, decides
 whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkley fit from the other two starts
@@ -54,8 +57,8 @@ POLISH_ITERATIONS = 2
 #: whose flow adds as much again as its yield stress, and a nearly plastic one. Over a factor 8 of shear rate a
 #: plastic's stress is nearly flat, and the half-yield start splits it into a yield stress and a low index, far from
 #: a plastic's τ_y and n = 1; on readings of a Bingham plastic the nearly plastic start reads closer
-#: (``test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress``). Each start costs one simulation; the one of
-#: least loss is fitted (``screened_pastes``).
+#: (``test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress``). Each start costs one simulation; the best
+#: of them, stress-scaled, is fitted (``screened_starts``).
 PASTE_SHARES = (0.5, 0.9)
 
 #: The yield stress of the start taken from the best liquid fit, as a share of its stress at the lowest speed [1]:
@@ -154,21 +157,24 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     w = 1.0 / np.array([p.total_log_std for p in points]) ** 2
     curve = FlowCurve(g, eta * g)
     middle = int(np.argsort(g)[g.size // 2])
-    first = []
+    first, points_start = [], {}
     for name in models:
         model = FitModel.named(name)  # validates the name
         if g.size > model.size:
             model = FitModel(fit_flow_curve(name, curve, weights=w / w.max()).law.float())
         else:
             model = initial_model(name, float(eta[middle]), float(g[middle]), yield_share=YIELD_SHARES[-1])
+        points_start[name] = model.copy()
         first.append(FitJob("joint", f"{name}/start0", problem, model, iterations, "lm", NO_NUISANCE))
     with Workers(workers, report=lambda event: None) as pool:
         best = {job.model.name: fit for job, fit in zip(first, pool.map(first))}
         liquid = _stress_reference(best, g)
         reference = curve if liquid is None else liquid
         yielding = [name for name in models if has_yield_stress(name)]
-        pastes = [FitJob("joint", f"{name}/start1", problem, model, iterations, "lm", NO_NUISANCE)
-                  for name, model in screened_pastes(pool, problem, yielding, reference).items()]
+        candidates = {name: {**{f"paste{share:g}": paste_start(name, reference, share) for share in PASTE_SHARES},
+                             "points": points_start[name]} for name in yielding}
+        pastes = [FitJob("joint", f"{name}/start1", problem, screened.model, iterations, "lm", NO_NUISANCE)
+                  for name, screened in screened_starts(pool, problem, candidates).items()]
         if liquid is not None:
             pastes += [FitJob("joint", f"{name}/start2", problem, paste_start(name, liquid, TRACE_YIELD_SHARE),
                               LIQUID_START_ITERATIONS, "lm", NO_NUISANCE) for name in yielding]
@@ -207,8 +213,8 @@ def paste_start(name: str, curve: FlowCurve, yield_share: float = 0.5) -> FitMod
 
 
 @dataclass
-class StartLoss:
-    """One simulation of ``model`` on ``problem``: the paper's loss [N] there, for a screen of starts (a job for
+class StartReading:
+    """One simulation of ``model`` on ``problem``: its readings [N] in the windows, for a screen of starts (a job for
     ``diffstir.parallel.Workers``)."""
 
     stage: str
@@ -217,20 +223,47 @@ class StartLoss:
     model: FitModel
     priority: tuple[bool, int] = (True, 1)
 
-    def run(self, report) -> float:
-        return float(self.problem.loss(Readings(self.problem, self.model)(self.model.theta())))
+    def run(self, report) -> np.ndarray:
+        return Readings(self.problem, self.model)(self.model.theta())
 
 
-def screened_pastes(pool: Workers, problem: JointProblem, names: list[str], curve: FlowCurve) -> dict[str, FitModel]:
-    """Each yield-stress law of ``names`` at its best paste start on ``curve``: one start per ``PASTE_SHARES``,
-    each simulated once on ``problem`` (side by side in ``pool``), the one of least loss kept."""
-    starts = [(name, share, paste_start(name, curve, share)) for name in names for share in PASTE_SHARES]
-    losses = pool.map([StartLoss("joint", f"{name}/paste{share:g}", problem, model) for name, share, model in starts])
-    best: dict[str, tuple[float, FitModel]] = {}
-    for (name, _, model), loss in zip(starts, losses):
-        if np.isfinite(loss) and loss < best.get(name, (np.inf, None))[0]:
-            best[name] = (loss, model)
-    return {name: best[name][1] if name in best else paste_start(name, curve) for name in names}
+@dataclass(frozen=True)
+class ScreenedStart:
+    """The start a screen kept: its ``label``, the ``amplitude`` c [1] its stress was scaled by, the rms residual
+    [N] of the scaled readings c p, and the scaled ``model``."""
+
+    label: str
+    amplitude: float
+    rms: float
+    model: FitModel
+
+
+def screened_starts(pool: Workers, problem: JointProblem,
+                    candidates: dict[str, dict[str, FitModel]]) -> dict[str, ScreenedStart]:
+    """Each law's best start among its ``candidates`` (law name → label → model): each simulated once on
+    ``problem`` (side by side in ``pool``), read as if its readings p scaled with its stress, as a viscous drag's
+    do, by the least-squares amplitude c = ⟨m, p⟩ / ⟨p, p⟩ on the measured readings m, and kept where Σ (m − c p)²
+    is least, its stress scaled by c (``FitModel.stress_scaled``). A candidate whose simulation fails is passed
+    over; a law all of whose candidates fail keeps its first, unscaled."""
+    jobs = [(name, label, model) for name, starts in candidates.items() for label, model in starts.items()]
+    readings = pool.map([StartReading("joint", f"{name}/{label}", problem, model) for name, label, model in jobs])
+    measured = problem.measured
+    best: dict[str, ScreenedStart] = {}
+    for (name, label, model), p in zip(jobs, readings):
+        norm = float(p @ p)
+        if not (np.isfinite(p).all() and norm > 0):
+            continue
+        c = float(p @ measured) / norm
+        if not c > 0:
+            continue
+        rms = float(np.sqrt(np.mean((measured - c * p) ** 2)))
+        if name not in best or rms < best[name].rms:
+            best[name] = ScreenedStart(label, c, rms, model.stress_scaled(c))
+    for name, starts in candidates.items():
+        if name not in best:
+            label, model = next(iter(starts.items()))
+            best[name] = ScreenedStart(label, 1.0, float("nan"), model)
+    return best
 
 
 def _stress_reference(fits: dict[str, FitResult], shear_rate: np.ndarray) -> FlowCurve | None:

@@ -21,6 +21,10 @@ from ..rheology import LAWS, RheologyLaw, make_law
 #: Bounds of the corotated baseline's shear modulus μ [Pa]; its apparent viscosity is μ Δt.
 COROTATED_BOUNDS = (1e-3, 1e9)
 
+#: Units of the parameters that carry a law's stress scale: multiplied together by c, they make its stress at every
+#: shear rate c times what it was (``FitModel.stress_scaled``).
+STRESS_UNITS = ("Pa", "Pa·s", "Pa·s^n")
+
 
 class FitModel:
     """A fluid model (a rheology law, or the corotated baseline) seen as θ.
@@ -89,6 +93,20 @@ class FitModel:
         else:
             lo_hi = self.material.bounds()
             self.material.set_parameters_si(**{k: min(max(v, lo_hi[k][0]), lo_hi[k][1]) for k, v in values.items()})
+
+    def stress_scaled(self, factor: float) -> "FitModel":
+        """A copy whose stress at every shear rate is ``factor`` times this one's: each parameter in a unit of
+        stress (``STRESS_UNITS``: a viscosity, a yield stress, a consistency, a modulus) times ``factor`` > 0,
+        clipped into its bounds; times and indices unchanged."""
+        if not factor > 0:
+            raise ValueError(f"a stress scale factor must be > 0, got {factor!r}")
+        theta = self.theta()
+        for i, name in enumerate(self.names):
+            if self.units[name] in STRESS_UNITS:  # log-scaled: θ = ln value
+                theta[i] += math.log(factor)
+        scaled = self.copy()
+        scaled.set_theta(theta)
+        return scaled
 
     def si_of_theta(self, theta: np.ndarray) -> np.ndarray:
         """SI values of θ (element-wise, no clipping: interval ends may lie outside the bounds)."""
