@@ -123,7 +123,7 @@ class StirProblem:
         step count, and finite-difference Jacobians over 1e-3 in ln η read noise). The fluid still settles at the
         least sound speed, as it does unheld (``SimConfig.rollout_sound_speed``): ``material`` reads here what it
         reads in ``self``."""
-        if self.config.compressibility is None or self.config.rollout_sound_speed is not None:
+        if self.config.fixed_sound_speed is not None:
             return self
         c = self.simulator(material).sound_speed(self.trajectory)
         return self.with_config(replace(self.config, rollout_sound_speed=c))

@@ -89,16 +89,14 @@ class StirringSimulator(nn.Module):
         return self.scene.viscosity_cap
 
     def sound_speed(self, trajectory: Trajectory) -> float:
-        """The rollout's speed of sound c [m/s]: ``config.rollout_sound_speed`` where it is set, else
-        ``config.sound_speed``, raised with ``config.compressibility`` δ to
-        sqrt(p / (ρ δ)), p the larger of the dynamic pressure ρ U² and the viscous pressure of a rod of radius a
-        dragged at U through a cup of radius b, 2π η U / (a [ln(b/a) − (b² − a²)/(b² + a²)]) (its Stokes drag
-        per unit length over its diameter), at the trajectory's top speed U and the viscosity at shear rate U/a."""
+        """The rollout's speed of sound c [m/s]: ``config.fixed_sound_speed`` where the config holds one, else
+        ``config.sound_speed`` raised with ``config.compressibility`` δ to sqrt(p / (ρ δ)), p the larger of the
+        dynamic pressure ρ U² and the viscous pressure of a rod of radius a dragged at U through a cup of radius b,
+        2π η U / (a [ln(b/a) − (b² − a²)/(b² + a²)]) (its Stokes drag per unit length over its diameter), at the
+        trajectory's top speed U and the viscosity at shear rate U/a."""
         cfg = self.config
-        if cfg.rollout_sound_speed is not None:
-            return cfg.rollout_sound_speed
-        if cfg.compressibility is None:
-            return cfg.sound_speed
+        if cfg.fixed_sound_speed is not None:
+            return cfg.fixed_sound_speed
         a, b = self.rig.rod.radius, self.rig.cup.radius
         u = trajectory.max_speed(a)
         law = getattr(self.material, "law", None)
