@@ -141,6 +141,7 @@ class _PhaseShiftedProblem:
         self.times = np.linspace(0.0, 2.0, 200)
         self.measured = eta_true * np.sin(2 * np.pi * self.times)
         self.train = np.ones(200, dtype=bool)
+        self.weights = np.ones(self.train.size)
         self.config = SimConfig(dim=2, viscosity_cap=1e3)
         self.recording = type("Recording", (), {"sensor": SensorSpec(mode="tangential", resolution=1e-4 * eta_true,
                                                                          sample_rate=100.0)})()

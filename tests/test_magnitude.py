@@ -32,6 +32,7 @@ class _InertialProblem:
         rng = np.random.default_rng(seed)
         self.measured = self.reading(eta_true) + rng.normal(0.0, noise, self.times.size)
         self.train = np.ones(self.times.size, dtype=bool)
+        self.weights = np.ones(self.train.size)
         self.config = SimConfig(dim=2, viscosity_cap=1e3)
         self.recording = type("Recording", (), {"sensor": SensorSpec(mode="tangential", resolution=1e-6,
                                                                          sample_rate=200.0)})()

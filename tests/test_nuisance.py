@@ -54,6 +54,7 @@ class _LaggedProblem:
         noise = np.random.default_rng(2).normal(0.0, 1e-3, self.times.size)
         self.measured = lag_response(eta_true * self.signal, self.times, 0.03) + 0.003 + noise
         self.train = np.ones(self.times.size, dtype=bool)
+        self.weights = np.ones(self.train.size)
         self.config = SimConfig(dim=2, viscosity_cap=1e3)
         self.recording = type("Recording", (), {"sensor": SensorSpec(mode="component", axis=(0.0, 1.0),
                                                                          resolution=1e-3, sample_rate=100.0)})()

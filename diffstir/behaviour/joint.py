@@ -18,8 +18,9 @@ liquid fit itself, with a yield stress of ``TRACE_YIELD_SHARE`` of its lowest st
 steps): a law that contains the liquid law then ends no worse than it, so that BIC, not the optimiser, decides
 whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkley fit from the other two starts
 ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's best start then takes
-``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Uncertainty and selection are those of ``identify``: the
-Laplace covariance with N_eff, BIC with the best fit's N_eff.
+``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs each window's
+residuals by its own scale (``JointProblem``). Uncertainty and selection are those of ``identify`` on the weighted
+residuals: the Laplace covariance with N_eff, BIC with the best fit's N_eff.
 """
 
 from __future__ import annotations
@@ -75,32 +76,56 @@ class JointProblem:
     """The windows of several recordings as one problem for ``identify.fit_model``: one simulation per recording,
     from its first sample to its last window's end, whose readings inside the windows are concatenated.
 
+    Each window's residuals count in units of their own scale s_w [N] (``window_scales``; default: all alike):
+    the fit minimises Σ_w Σ_i (r_i / s_w)² (robustly), a Gaussian likelihood with a variance per window known up
+    to one common factor. The joint fit takes s_w as the misfit of the window's own Newtonian fit
+    (``ViscosityPoint.loss``), what a free viscosity per speed leaves and no flow curve can remove: at the fast
+    speeds that is mostly the simulation's jitter, readings that move by tens of percent of their misfit when the
+    sound speed moves by 0.5 % (docs/accuracy.md), which with one variance for all windows outweighed the slow
+    windows, where the laws differ, and decided the law by chance.
+
     Attributes:
         problems: one ``StirProblem`` per recording; ``masks`` its samples inside a window.
         measured: measured readings in the windows [N]; ``train`` all True (nothing is held out).
+        weights: each sample's weight min_w s_w / s_w [1] (at most 1: the best-fitted window's residuals stay in
+            newtons, so the robust cost's noise floor keeps its meaning).
         recording: the first recording (its sensor's resolution sets the robust loss's noise floor).
         config, density: the simulation settings and the fluid's density [kg/m³] shared by every problem (the
             fit bounds a model by the simulator's limits from them).
     """
 
-    def __init__(self, windows: list[SpeedWindow], config: SimConfig, density: float):
-        by_recording: dict[int, list[SpeedWindow]] = {}
-        for w in windows:
-            by_recording.setdefault(id(w.recording), []).append(w)
+    def __init__(self, windows: list[SpeedWindow], config: SimConfig, density: float,
+                 window_scales: list[float] | None = None):
+        scales = np.ones(len(windows)) if window_scales is None else np.asarray(window_scales, dtype=np.float64)
+        if scales.shape != (len(windows),) or not (np.isfinite(scales).all() and (scales > 0).all()):
+            raise ValueError(f"behaviour: window scales {scales.tolist()} for {len(windows)} windows; expected one "
+                             "misfit > 0 in N per window")
+        by_recording: dict[int, list[int]] = {}
+        for k, w in enumerate(windows):
+            by_recording.setdefault(id(w.recording), []).append(k)
         self.config, self.density = config, float(density)
-        self.problems, self.masks = [], []
+        self.problems, self.masks, sample_scales = [], [], []
         for group in by_recording.values():
-            start, end = min(w.start for w in group), max(w.end for w in group)
-            problem = StirProblem(group[0].recording, config, density, Windows(start, end, end))
+            start, end = min(windows[k].start for k in group), max(windows[k].end for k in group)
+            problem = StirProblem(windows[group[0]].recording, config, density, Windows(start, end, end))
+            inside = np.array([(problem.times > windows[k].start) & (problem.times <= windows[k].end) for k in group])
+            mask = inside.any(axis=0)
             self.problems.append(problem)
-            self.masks.append(np.any([(problem.times > w.start) & (problem.times <= w.end) for w in group], axis=0))
+            self.masks.append(mask)
+            sample_scales.append((scales[group] @ inside)[mask])  # windows do not overlap
         self.recording = self.problems[0].recording
         self.measured = np.concatenate([p.measured[m] for p, m in zip(self.problems, self.masks)])
         self.train = np.ones(self.measured.size, dtype=bool)
+        self.weights = scales.min() / np.concatenate(sample_scales)
 
     def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
         """The paper's loss, mean |measured − predicted| [N], over every window (None for the held-out part)."""
         return float(np.mean(np.abs(self.measured - predicted))) if train else None
+
+    def cost(self, predicted: np.ndarray) -> float:
+        """The rms of the weighted residuals, sqrt(mean (w (measured − predicted))²) [N]: what the fit minimises
+        and the laws are compared on."""
+        return float(np.sqrt(np.mean((self.weights * (self.measured - predicted)) ** 2)))
 
     def frozen(self, material: nn.Module) -> "JointProblem":
         """Each recording's problem with the sound speed ``material`` gets held fixed (``StirProblem.frozen``)."""
@@ -116,22 +141,26 @@ class JointProblem:
 
 @dataclass
 class JointFit:
-    """Laws fitted to all speeds: ``fits`` and ``uncertainty`` by law, ``bic``, the ``selected`` law by BIC."""
+    """Laws fitted to all speeds: ``fits`` and ``uncertainty`` by law, ``bic``, the ``selected`` law by BIC, and
+    each law's ``cost`` [N], the rms of its weighted residuals (``JointProblem.cost``)."""
 
     fits: dict[str, FitResult]
     uncertainty: dict[str, Uncertainty]
     bic: dict[str, float]
     selected: str
+    cost: dict[str, float]
 
     def summary(self) -> dict:
         laws = {name: {"params": fit.model.params_si(), "units": fit.model.units,
                        "ci95": {k: [finite_or_none(lo), finite_or_none(hi)]
                                 for k, (lo, hi) in self.uncertainty[name].ci95.items()},
-                       "identifiable": self.uncertainty[name].identifiable, "loss": fit.loss, "bic": self.bic[name],
+                       "identifiable": self.uncertainty[name].identifiable, "loss": fit.loss,
+                       "weighted_rms": self.cost[name], "bic": self.bic[name],
                        "evaluations": fit.evaluations, "seconds": fit.seconds}
                 for name, fit in self.fits.items()}
         return {"selected": self.selected, "ranking": rank(self.bic), "laws": laws,
-                "criterion": "bic over the readings of every window"}
+                "criterion": "bic over the readings of every window, each window's residuals in units of its own "
+                             "Newtonian fit's loss (weighted_rms [N]: the rms of the weighted residuals)"}
 
     def yield_shares(self, shear_rate: float) -> dict[str, float]:
         """Each yield-stress law's share of its stress at ``shear_rate`` [1/s] carried by its yield stress,
@@ -151,7 +180,7 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes."""
     if not models:
         raise ValueError("behaviour.joint_models is empty; name at least one law of diffstir.rheology.LAWS")
-    problem = JointProblem([p.window for p in points], config, density)
+    problem = JointProblem([p.window for p in points], config, density, [p.loss for p in points])
     g = np.asarray(shear_rates, dtype=np.float64)
     eta = np.array([p.viscosity for p in points])
     w = 1.0 / np.array([p.total_log_std for p in points]) ** 2
@@ -168,7 +197,7 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
         first.append(FitJob("joint", f"{name}/start0", problem, model, iterations, "lm", NO_NUISANCE))
     with Workers(workers, report=lambda event: None) as pool:
         best = {job.model.name: fit for job, fit in zip(first, pool.map(first))}
-        liquid = _stress_reference(best, g)
+        liquid = _stress_reference(problem, best, g)
         reference = curve if liquid is None else liquid
         yielding = [name for name in models if has_yield_stress(name)]
         candidates = {name: {**{f"paste{share:g}": paste_start(name, reference, share) for share in PASTE_SHARES},
@@ -179,19 +208,21 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
             pastes += [FitJob("joint", f"{name}/start2", problem, paste_start(name, liquid, TRACE_YIELD_SHARE),
                               LIQUID_START_ITERATIONS, "lm", NO_NUISANCE) for name in yielding]
         for job, fit in zip(pastes, pool.map(pastes)):
-            if fit.loss < best[job.model.name].loss:
+            if problem.cost(fit.predicted) < problem.cost(best[job.model.name].predicted):
                 best[job.model.name] = fit
         polish = [FitJob("joint-polish", name, problem, fit.model, POLISH_ITERATIONS, "lm", NO_NUISANCE)
                   for name, fit in best.items()]
         fits = {job.key: replace(fit, history=best[job.key].history + fit.history, seconds=best[job.key].seconds
                                  + fit.seconds, evaluations=best[job.key].evaluations + fit.evaluations)
                 for job, fit in zip(polish, pool.map(polish))}
-    residuals = {n: f.predicted - problem.measured for n, f in fits.items()}
-    uncertainty = {n: laplace(f.model, f.theta, f.jacobian, residuals[n]) for n, f in fits.items()}
+    weights = problem.weights
+    residuals = {n: weights * (f.predicted - problem.measured) for n, f in fits.items()}
+    uncertainty = {n: laplace(f.model, f.theta, weights[:, None] * f.jacobian, residuals[n])
+                   for n, f in fits.items()}
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples
     bics = {n: bic(r, fits[n].model.size, n_effective) for n, r in residuals.items()}
-    return JointFit(fits, uncertainty, bics, rank(bics)[0])
+    return JointFit(fits, uncertainty, bics, rank(bics)[0], {n: problem.cost(f.predicted) for n, f in fits.items()})
 
 
 def paste_start(name: str, curve: FlowCurve, yield_share: float = 0.5) -> FitModel:
@@ -229,8 +260,8 @@ class StartReading:
 
 @dataclass(frozen=True)
 class ScreenedStart:
-    """The start a screen kept: its ``label``, the ``amplitude`` c [1] its stress was scaled by, the rms residual
-    [N] of the scaled readings c p, and the scaled ``model``."""
+    """The start a screen kept: its ``label``, the ``amplitude`` c [1] its stress was scaled by, the weighted rms
+    residual [N] of the scaled readings c p (``JointProblem.cost``), and the scaled ``model``."""
 
     label: str
     amplitude: float
@@ -242,21 +273,22 @@ def screened_starts(pool: Workers, problem: JointProblem,
                     candidates: dict[str, dict[str, FitModel]]) -> dict[str, ScreenedStart]:
     """Each law's best start among its ``candidates`` (law name → label → model): each simulated once on
     ``problem`` (side by side in ``pool``), read as if its readings p scaled with its stress, as a viscous drag's
-    do, by the least-squares amplitude c = ⟨m, p⟩ / ⟨p, p⟩ on the measured readings m, and kept where Σ (m − c p)²
-    is least, its stress scaled by c (``FitModel.stress_scaled``). A candidate whose simulation fails is passed
+    do, by the weighted least-squares amplitude c = ⟨w m, w p⟩ / ⟨w p, w p⟩ on the measured readings m (w the
+    problem's ``weights``), and kept where Σ w² (m − c p)² is least, its stress scaled by c
+    (``FitModel.stress_scaled``). A candidate whose simulation fails is passed
     over; a law all of whose candidates fail keeps its first, unscaled."""
     jobs = [(name, label, model) for name, starts in candidates.items() for label, model in starts.items()]
     readings = pool.map([StartReading("joint", f"{name}/{label}", problem, model) for name, label, model in jobs])
-    measured = problem.measured
+    measured, w = problem.measured, problem.weights
     best: dict[str, ScreenedStart] = {}
     for (name, label, model), p in zip(jobs, readings):
-        norm = float(p @ p)
+        norm = float((w * p) @ (w * p))
         if not (np.isfinite(p).all() and norm > 0):
             continue
-        c = float(p @ measured) / norm
+        c = float((w * p) @ (w * measured)) / norm
         if not c > 0:
             continue
-        rms = float(np.sqrt(np.mean((measured - c * p) ** 2)))
+        rms = problem.cost(c * p)
         if name not in best or rms < best[name].rms:
             best[name] = ScreenedStart(label, c, rms, model.stress_scaled(c))
     for name, starts in candidates.items():
@@ -266,13 +298,13 @@ def screened_starts(pool: Workers, problem: JointProblem,
     return best
 
 
-def _stress_reference(fits: dict[str, FitResult], shear_rate: np.ndarray) -> FlowCurve | None:
-    """The stress η γ̇ [Pa] at ``shear_rate`` [1/s] of the best-fitting law without a yield stress among ``fits``
-    (None if there is none): what the readings of every speed say the stress is, where the per-speed points are
-    Newtonian equivalents."""
+def _stress_reference(problem: JointProblem, fits: dict[str, FitResult], shear_rate: np.ndarray) -> FlowCurve | None:
+    """The stress η γ̇ [Pa] at ``shear_rate`` [1/s] of the law without a yield stress among ``fits`` that fits
+    ``problem`` best (None if there is none): what the readings of every speed say the stress is, where the
+    per-speed points are Newtonian equivalents."""
     liquids = {name: fit for name, fit in fits.items() if not has_yield_stress(name)}
     if not liquids:
         return None
-    fit = min(liquids.values(), key=lambda f: f.loss)
+    fit = min(liquids.values(), key=lambda f: problem.cost(f.predicted))
     eta, _ = fit.model.viscosity(shear_rate, fit.theta)
     return FlowCurve(shear_rate, eta * shear_rate)

@@ -318,6 +318,7 @@ class CachedReplay:
     def __init__(self, problem, model):
         self.problem, self.model, self.cache, self.simulations = problem, model, {}, 0
         self.train, self.measured, self.recording = problem.train, problem.measured, problem.recording
+        self.weights = problem.weights
         self.config, self.density = problem.config, problem.density
 
     def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:

@@ -8,7 +8,8 @@ iteration costs one forward simulation after the first.
 The paper's loss is L = mean_i |F_measured(t_i) - F_simulated(t_i)| [N] over the fitted samples. The default
 optimiser minimises the robust ``soft_l1`` cost sum_i 2 s² (sqrt(1 + (r_i/s)²) - 1), least squares for residuals
 within the scale s and the paper's L1 loss for those far beyond it, where s is the robust size of the residuals
-at the start (``residual_scale``), with dogleg steps in a rectangular trust region inside the bounds
+at the start (``residual_scale``), each residual first multiplied by its sample's weight (``problem.weights``
+[1]: one for a single recording, each window's own scale for the behaviour app's joint fit), with dogleg steps in a rectangular trust region inside the bounds
 (scipy.optimize.least_squares, ``dogbox``) whose first size is ``TRUST_RADIUS`` per parameter.
 """
 
@@ -238,6 +239,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
     train = problem.train
     times = problem.times if sensor.fitted else None  # sample times [s], needed by the lag only
     measured = problem.measured[train]
+    weights = problem.weights[train]
     history: list[dict] = []
     profiles: dict[bytes, dict[str, float]] = {}
 
@@ -260,11 +262,11 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
     if not np.isfinite(readings(theta0)).all():
         raise FloatingPointError(f"{model.name}: the fit's starting point does not simulate: {readings.failures[-1]}")
     if optimizer == "lm":
-        scale = residual_scale(reading(theta0)[0][train] - measured,
+        scale = residual_scale(weights * (reading(theta0)[0][train] - measured),
                                noise_scale(problem.measured, problem.recording.sensor.resolution))
 
         def residuals(step):
-            return reading(theta0 + step)[0][train] - measured
+            return weights * (reading(theta0 + step)[0][train] - measured)
 
         broyden = _BroydenJacobian(readings, initial_jacobian, initial_readings,
                                    min_step=SECANT_FRACTION * np.array([FD_STEP[s] for s in model.scales]))
@@ -274,8 +276,8 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
             jac = broyden(theta)
             y, values = reading(theta)
             record(theta, problem.loss(y))
-            return sensor.projected(lag_response(jac, times, values.get("lag", 0.0)), readings(theta), times,
-                                    values, train)
+            return weights[:, None] * sensor.projected(lag_response(jac, times, values.get("lag", 0.0)),
+                                                       readings(theta), times, values, train)
 
         # in steps from the start, so the first trust region is TRUST_RADIUS whatever θ's units (the dogbox
         # method's box starts at the size of x0 in x_scale units, or 1 at x0 = 0)

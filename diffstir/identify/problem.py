@@ -96,6 +96,7 @@ class StirProblem:
         self.measured = recording.force[self.index]
         self.velocity = recording.velocity()[self.index]  # m/s, (M, 2)
         self.train = self.times <= self.windows.split
+        self.weights = np.ones(self.measured.shape[0])  # [1] per sample: every residual counts alike (``fit_model``)
         if self.train.sum() < 8:
             raise RecordingError(f"{recording.source('csv')}: only {int(self.train.sum())} samples before the "
                                  f"held-out split at {self.windows.split:g} s; shorten fit.holdout_fraction")
