@@ -167,6 +167,38 @@ def test_gauss_newton_converges_from_a_factor_two_whatever_the_units(eta_true):
     assert fit.model.params_si()["eta"] == pytest.approx(best, rel=0.01)
 
 
+class _TwoWindowProblem(_PhaseShiftedProblem):
+    """A stand-in whose reading is η times a sinusoid [N], measured with 1 mN of noise in its first second and
+    0.3 N in its second (a window whose readings the simulator cannot predict), weighed by ``weights``."""
+
+    NOISE = (1e-3, 0.3)  # N
+
+    def __init__(self, eta_true: float, weights: np.ndarray):
+        super().__init__(eta_true)
+        rng = np.random.default_rng(4)
+        self.noise = np.where(self.times < 1.0, *self.NOISE)
+        self.measured = eta_true * np.sin(2 * np.pi * self.times) + self.noise * rng.normal(size=self.times.size)
+        self.weights = weights
+
+    def simulate(self, law):
+        return torch.as_tensor(float(law(torch.ones(1, dtype=torch.float64))) * np.sin(2 * np.pi * self.times))
+
+
+def test_a_fit_weighs_each_residual_by_its_samples_weight():
+    # weighed by 1/σ (relative), the fit is the weighted least-squares estimate, as precise as the quiet second
+    # allows: standard error σ_q / sqrt(Σ_quiet sin²) = 1 mN / sqrt(50); unweighed, the noisy second moves it by
+    # about 0.3 N / sqrt(100) = 0.03 Pa·s
+    uniform = _TwoWindowProblem(1.0, np.ones(200))
+    weights = _TwoWindowProblem.NOISE[0] / uniform.noise
+    weighted = _TwoWindowProblem(1.0, weights)
+    signal = np.sin(2 * np.pi * weighted.times)
+    standard_error = _TwoWindowProblem.NOISE[0] / math.sqrt(np.sum(signal[weighted.times < 1.0] ** 2))
+    fitted = fit_model(weighted, FitModel.named("newtonian", eta=0.5), max_iterations=6)
+    assert fitted.model.params_si()["eta"] == pytest.approx(1.0, abs=4 * standard_error)
+    plain = fit_model(uniform, FitModel.named("newtonian", eta=0.5), max_iterations=6)
+    assert abs(plain.model.params_si()["eta"] - 1.0) > 10 * standard_error
+
+
 def test_a_held_sound_speed_reads_what_the_stir_reads(newtonian_recording):
     """A fit holds the sound speed its starting law gets (``StirProblem.frozen``), and the fluid still settles at
     the least one: at that law the held problem reads exactly what the unheld one reads. (Held by setting the
