@@ -3,6 +3,7 @@ fitting model itself, a Herschel-Bulkley paste is told from a power law that nea
 
 import dataclasses
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -181,3 +182,9 @@ def test_index_starts_shift_the_index_and_keep_the_stress_at_the_pivot():
             # the stress now grows with the rate by the shifted index: steeper above the pivot for a larger n
             assert (eta[2] > model.viscosity(rate)[0][2]) == (shift > 0)
     assert list(index_starts(FitModel.named("newtonian", eta=1.0), 10.0)) == ["points"]
+    # glycerol's points' Carreau curve on the 5 mm grid: η∞ above η0, nearly Newtonian at n = 1; raising n drives
+    # its viscosity to the floor at the pivot, and that start is left out instead of scaled by an infinite factor
+    glycerol = FitModel.named("carreau", eta0=0.3842, eta_inf=275.06, lam=185.6, n=1.0001)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert list(index_starts(glycerol, 10.0)) == ["points", "n-0.15"]

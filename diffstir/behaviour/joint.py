@@ -31,6 +31,7 @@ residuals: the Laplace covariance with N_eff, BIC with the best fit's N_eff.
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -241,16 +242,20 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
 
 def index_starts(model: FitModel, shear_rate: float) -> dict[str, FitModel]:
     """``model`` (label ``points``) and, for a law with an index n, the law with n shifted by each of
-    ``INDEX_SHIFTS`` (clipped to its bounds; label ``n+0.15`` ...), its stress at ``shear_rate`` [1/s] kept."""
+    ``INDEX_SHIFTS`` (clipped to its bounds; label ``n+0.15`` ...), its stress at ``shear_rate`` [1/s] kept. A shift
+    that leaves no positive viscosity there (a Carreau curve with η∞ above η0, whose viscosity the shift drives
+    to its floor of 0) gives no start."""
     starts = {"points": model}
     if "n" not in model.names:
         return starts
     params = model.params_si()
     rate = np.array([shear_rate])
+    eta = float(model.viscosity(rate)[0][0])
     for shift in INDEX_SHIFTS:
         shifted = FitModel.named(model.name, **within_bounds(model.name, {**params, "n": params["n"] + shift}))
-        ratio = float(model.viscosity(rate)[0][0] / shifted.viscosity(rate)[0][0])
-        starts[f"n{shift:+g}"] = shifted.stress_scaled(ratio)
+        eta_shifted = float(shifted.viscosity(rate)[0][0])
+        if eta > 0 and eta_shifted > 0 and math.isfinite(eta / eta_shifted):
+            starts[f"n{shift:+g}"] = shifted.stress_scaled(eta / eta_shifted)
     return starts
 
 
