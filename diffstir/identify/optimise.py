@@ -9,7 +9,8 @@ The paper's loss is L = mean_i |F_measured(t_i) - F_simulated(t_i)| [N] over the
 optimiser minimises the robust ``soft_l1`` cost sum_i 2 s² (sqrt(1 + (r_i/s)²) - 1), least squares for residuals
 within the scale s and the paper's L1 loss for those far beyond it, where s is the robust size of the residuals
 at the start (``residual_scale``), each residual first multiplied by its sample's weight (``problem.weights``
-[1]: one for a single recording, each window's own scale for the behaviour app's joint fit), with dogleg steps in a rectangular trust region inside the bounds
+[1]: one for a single recording, each window's own scale for the behaviour app's joint fit; the Adam optimiser
+keeps the paper's unweighted loss), with dogleg steps in a rectangular trust region inside the bounds
 (scipy.optimize.least_squares, ``dogbox``) whose first size is ``TRUST_RADIUS`` per parameter.
 """
 
