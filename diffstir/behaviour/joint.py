@@ -209,8 +209,9 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     with Workers(workers, report=lambda event: None) as pool:
         starts = screened_starts(pool, problem, {name: index_starts(model, pivot)
                                                  for name, model in points_start.items()})
-        first = [FitJob("joint", f"{name}/start0", problem, starts[name].model, iterations, "lm", NO_NUISANCE)
-                 for name in models]
+        # a copy: a fit in this process moves its model, and a screen that kept no start returns the points' own
+        first = [FitJob("joint", f"{name}/start0", problem, starts[name].model.copy(), iterations, "lm",
+                        NO_NUISANCE) for name in models]
         best = {job.model.name: fit for job, fit in zip(first, pool.map(first))}
         liquid = _stress_reference(problem, best, g)
         reference = curve if liquid is None else liquid
