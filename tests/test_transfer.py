@@ -12,8 +12,8 @@ from diffstir.rheology import Carreau
 from diffstir.rig import Rig
 from diffstir.trajectory import circle
 
-pytestmark = pytest.mark.skipif(not use_fused("auto", torch.device("cpu")),
-                                reason="the fused kernels do not build here (no C++ compiler or ninja)")
+needs_kernels = pytest.mark.skipif(not use_fused("auto", torch.device("cpu")),
+                                   reason="the fused kernels do not build here (no C++ compiler or ninja)")
 
 
 def _setup(d: int, count: int = 20, seed: int = 0):
@@ -30,6 +30,7 @@ def _stencil(grid, offset_index, x, fused):
     return quadratic_stencil(grid, x, offset_index, grid.strides(), weights=not fused)
 
 
+@needs_kernels
 @pytest.mark.parametrize("d", [2, 3])
 @pytest.mark.parametrize("columns", [1, 3, 4, 7])
 def test_fused_transfers_equal_the_torch_ops_with_their_derivatives(d, columns):
@@ -51,6 +52,7 @@ def test_fused_transfers_equal_the_torch_ops_with_their_derivatives(d, columns):
     assert torch.autograd.gradcheck(to_particles, (nodal, x))
 
 
+@needs_kernels
 @pytest.mark.parametrize("d", [2, 3])
 def test_scatter_and_gather_are_adjoint(d):
     """<scatter(P), G> = <P, gather(G)>: p2g and g2p move momentum and velocity through the same weights."""
@@ -63,6 +65,7 @@ def test_scatter_and_gather_are_adjoint(d):
     assert float(left) == pytest.approx(float(right), rel=1e-12)
 
 
+@needs_kernels
 def test_a_stencil_off_the_grid_is_an_error_not_a_stray_write():
     grid, offset_index, points, x = _setup(2)
     st = _stencil(grid, offset_index, x.detach(), fused=True)
@@ -71,6 +74,7 @@ def test_a_stencil_off_the_grid_is_an_error_not_a_stray_write():
         scatter(torch.zeros(1, x.shape[0], 3, dtype=torch.float64), st, grid.num_nodes, points, True)
 
 
+@needs_kernels
 @pytest.mark.parametrize("wall_pressure", [False, True])
 def test_simulator_forces_and_gradients_do_not_depend_on_the_kernels(wall_pressure):
     """A 2-D stir with FLIP and volume relaxation on, with and without boundary particles: forces and the gradient
@@ -97,6 +101,7 @@ def test_kernels_setting_is_checked():
         SimConfig(kernels="fused", device="cuda")
 
 
+@needs_kernels
 @pytest.mark.parametrize("d", [2, 3])
 def test_forward_mode_tangents_equal_the_torch_ops(d):
     """In forward mode (``sensitivity``) the fused transfers give the primal they give without a tangent, and the
@@ -134,3 +139,31 @@ def test_without_a_compiler_auto_takes_the_torch_ops_and_fused_says_why(monkeypa
     assert "command not found" in caplog.text
     with pytest.raises(RuntimeError, match=r"command not found.*sim.kernels=torch"):
         transfer.use_fused("fused", torch.device("cpu"))
+
+
+def test_a_dead_builders_lock_is_removed_and_a_live_builders_waited_for(tmp_path, caplog):
+    """A build lock older than the stale age is removed at once with a warning naming it; a younger one is waited
+    for while it stands, and removed once it has aged past the stale age; no lock, no wait."""
+    import os
+    import threading
+    import time
+
+    from diffstir.mpm.transfer import wait_for_build_lock
+    lock = tmp_path / "lock"
+    started = time.monotonic()
+    wait_for_build_lock(tmp_path, stale_after=60.0)
+    assert time.monotonic() - started < 1.0
+    lock.touch()
+    os.utime(lock, (time.time() - 3600.0, time.time() - 3600.0))
+    with caplog.at_level("WARNING", logger="diffstir.mpm.transfer"):
+        wait_for_build_lock(tmp_path, stale_after=600.0)
+    assert not lock.exists() and str(lock) in caplog.text
+    lock.touch()  # a live builder that finishes after 0.3 s
+    threading.Timer(0.3, lock.unlink).start()
+    started = time.monotonic()
+    wait_for_build_lock(tmp_path, stale_after=60.0, poll=0.05)
+    assert 0.25 < time.monotonic() - started < 5.0
+    lock.touch()  # a builder that died just now: waited for until the lock is 0.5 s old
+    started = time.monotonic()
+    wait_for_build_lock(tmp_path, stale_after=0.5, poll=0.05)
+    assert not lock.exists() and 0.4 < time.monotonic() - started < 5.0

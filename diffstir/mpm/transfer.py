@@ -13,12 +13,19 @@ Two implementations give the same numbers. ``fused=False``: torch tensor ops, on
 machine) that compute each particle's weights once and touch each of its nodes once, with their own derivatives
 in reverse and forward mode, registered as torch operators so that ``torch.compile`` calls them from its graph;
 the torch ops build (C, N, 3^d) intermediates and scatter them instead.
+
+Processes that start together build the kernels once: the first holds a lock file in the build directory while it
+compiles, the others wait. torch's own wait has no timeout, so a builder killed mid-build would leave every later
+process waiting forever; a lock older than ``STALE_LOCK_SECONDS`` is removed with a warning instead
+(``wait_for_build_lock``).
 """
 
 from __future__ import annotations
 
 import functools
 import logging
+import os
+import time
 from pathlib import Path
 
 import torch
@@ -29,6 +36,8 @@ from .grid import Stencil
 
 log = logging.getLogger(__name__)
 SOURCE = Path(__file__).parent / "csrc" / "transfer.cpp"
+#: Age [s] past which the build lock was left by a process that died while building: a build takes about 50 s.
+STALE_LOCK_SECONDS = 600.0
 
 
 @functools.cache
@@ -37,13 +46,41 @@ def _build():
     from torch.utils.cpp_extension import load
     log.info("loading the fused transfer kernels (%s; compiled on a machine's first use, about 50 s)", SOURCE)
     try:
-        return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"]), None
+        directory = build_directory()
+        directory.mkdir(parents=True, exist_ok=True)
+        wait_for_build_lock(directory)
+        return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"],
+                    build_directory=str(directory)), None
     except Exception as error:  # compiler, ninja or header missing: a build problem, not a simulation one
         return None, error
 
 
+def build_directory() -> Path:
+    """Where the kernels are compiled and cached: ``$TORCH_EXTENSIONS_DIR`` (default ``~/.cache/torch_extensions``)
+    / ``diffstir_transfer-<torch version>``, rebuilt for each torch."""
+    root = os.environ.get("TORCH_EXTENSIONS_DIR") or Path.home() / ".cache" / "torch_extensions"
+    return Path(root) / f"diffstir_transfer-{torch.__version__.replace('+', '_')}"
+
+
+def wait_for_build_lock(directory: Path, stale_after: float = STALE_LOCK_SECONDS, poll: float = 1.0) -> None:
+    """Return once ``directory`` holds no build lock (``lock``): while another process builds, wait, polling every
+    ``poll`` s; a lock older than ``stale_after`` [s] is a dead builder's and is removed, with a warning."""
+    lock = directory / "lock"
+    while True:
+        try:
+            age = time.time() - lock.stat().st_mtime
+        except FileNotFoundError:
+            return
+        if age > stale_after:
+            log.warning("removing the fused kernels' build lock %s, left %.0f s ago by a process that did not "
+                        "finish its build", lock, age)
+            lock.unlink(missing_ok=True)
+            return
+        time.sleep(min(poll, stale_after - age + 0.01))
+
+
 def kernels():
-    """The compiled C++ kernels, built on first use (about 50 s, then cached under ``TORCH_EXTENSIONS_DIR``).
+    """The compiled C++ kernels, built on first use (about 50 s, then cached in ``build_directory()``).
 
     Raises RuntimeError, naming what failed, where they cannot be built (no C++ compiler or ninja)."""
     module, error = _build()
