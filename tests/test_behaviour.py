@@ -9,10 +9,11 @@ import sys
 import numpy as np
 import pytest
 import torch
+from scipy import stats
 
 from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows
 from diffstir.behaviour.apparent import with_baseline
-from diffstir.behaviour.classify import YIELD_CRITICAL
+from diffstir.behaviour.classify import YIELD_CRITICAL, JointIndex
 from diffstir.behaviour.joint import paste_start
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
@@ -187,6 +188,44 @@ def test_joint_fit_decides_the_yield_stress(curve, bics, label):
     assert sum(share.values()) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("index,label", [
+    (JointIndex(0.03, 0.02), "newtonian"),        # interval -0.009 to 0.069 holds 0
+    (JointIndex(0.10, 0.02), "shear_thickening"),
+    (JointIndex(-0.30, 0.05), "shear_thinning"),
+])
+def test_the_joint_power_laws_index_decides_the_slope_test(index, label):
+    # points that lean thinning, as the 5 mm grid's Newtonian-equivalent points of a liquid do: the joint power
+    # law's index, with its interval, decides in their place
+    g = np.logspace(0, 2, 6)
+    points = classify(g, 0.5 * g**-0.1, np.full(g.size, 0.01), replicates=50)
+    assert points.label == "shear_thinning"
+    result = points.with_joint_index(index)
+    assert result.label == label and result.index is index
+    # the confidence: the share of replicates b* ~ N(b, s²) that the same rule puts in the same class
+    z = index.value / index.std
+    expected = {"newtonian": stats.norm.cdf(Z95 - z) - stats.norm.cdf(-Z95 - z),
+                "shear_thickening": stats.norm.sf(Z95 - z), "shear_thinning": stats.norm.cdf(-Z95 - z)}[label]
+    assert result.confidence == pytest.approx(expected)
+    assert sum(result.shares.values()) == pytest.approx(1.0)
+    stated = result.summary()
+    assert stated["slope"] == index.value and stated["slope_ci95"] == pytest.approx(list(index.ci95))
+    assert stated["points_slope"]["value"] == points.slope.value and stated["slope_source"].startswith("joint")
+
+
+def test_a_falling_index_leaves_the_yield_stress_to_the_yield_tests():
+    g = np.logspace(-2, 2, 6)
+    plateau = classify(g, 2.0 / g + 0.01, np.full(g.size, 0.01), replicates=50)  # a Bingham plastic's points
+    assert plateau.label == "yield_stress"
+    falling = plateau.with_joint_index(JointIndex(-0.8, 0.05))
+    assert falling.label == "yield_stress" and falling.shares["shear_thinning"] == 0.0
+    # the joint yield test then decides, with the index's share of a falling viscosity
+    liquid = falling.with_joint_yield_test(joint_yield_test({"power_law": 0.0, "herschel_bulkley": 6.0}))
+    assert liquid.label == "shear_thinning"
+    assert liquid.confidence == pytest.approx(falling.shares["yield_stress"] * (1 - liquid.joint.weight))
+    # an index the readings do not see leaves the points' verdict
+    assert plateau.with_joint_index(JointIndex(-0.8, math.inf)) is plateau
+
+
 def test_window_interval_carries_the_simulators_force_error():
     # a drag p = c η^e read with noise: a relative force error σ_m of the simulator moves ln η by σ_m / e whatever
     # the noise (the readings' Jacobian d p / d ln η is e p); the noise's own error is the least-squares one
@@ -239,11 +278,13 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     # Metzner-Otto: a power law's Newtonian-equivalent viscosity goes as U^(n-1) in creeping flow; inertia and the
     # capped far field flatten it, so the per-speed slope only has to be negative; the joint fit, through the same
     # simulator, must find n itself (four Gauss-Newton steps from the per-speed flow curve's power law converge)
-    assert c.label == "shear_thinning" and -(1 - 0.4) - Z95 * c.slope.std < c.slope.value
+    assert -(1 - 0.4) - Z95 * c.slope.std < c.slope.value < 0
     joint = result.joint
     assert joint.selected == "power_law"  # one more parameter, and BIC still prefers it to Newtonian
     lo, hi = joint.uncertainty["power_law"].ci95["n"]
     assert lo <= 0.4 <= hi
+    # the joint index decides the slope test: n − 1 with the same interval
+    assert c.label == "shear_thinning" and c.index.ci95 == pytest.approx((lo - 1, hi - 1))
     # the laws were fitted in two worker processes, as FitJobs on diffstir.parallel.Workers, whose results equal
     # those fitted in one process (test_identify's test_models_fitted_in_parallel_processes_equal_those_fitted_in_one)
 

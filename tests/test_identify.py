@@ -290,6 +290,33 @@ def test_a_relative_force_error_moves_log_parameters_together():
         bare.covariance.tolist()
 
 
+def test_a_force_error_of_each_speed_window_moves_a_power_laws_index():
+    # a power law read at six shear rates g_w, m samples each: p = k g_w^n, θ = (ln k, n), J = [p, p ln g_w]. An
+    # error ε_w of window w's amplitude is a shift ε_w of ln p_w, so (ln k, n) move as a weighted regression of ε_w on
+    # x_w = ln g_w with weights m p_w²: var n = σ_m² Σ_w c_w², c_w = m p_w² (x_w − x̄) / Σ m p² (x − x̄)². One error
+    # common to every window moves ln k alone
+    g, m, k, n = 2.0 ** np.arange(6), 40, 0.3, 1.1
+    x = np.repeat(np.log(g), m)
+    readings = k * np.exp(n * x)
+    jacobian = np.column_stack([readings, readings * x])
+    residuals = np.random.default_rng(4).normal(0.0, 1e-4, readings.size)
+    model = FitModel.named("power_law", k=k, n=n)
+    bare = laplace(model, model.theta(), jacobian, residuals)
+    windows = np.repeat(np.arange(6), m)
+    per_window = laplace(model, model.theta(), jacobian, residuals, readings, model_error=0.05, windows=windows)
+    w = m * (k * g**n) ** 2
+    xm = np.sum(w * np.log(g)) / w.sum()
+    c = w * (np.log(g) - xm) / np.sum(w * (np.log(g) - xm) ** 2)
+    added = per_window.covariance - bare.covariance
+    assert added[1, 1] == pytest.approx(0.05**2 * np.sum(c**2), rel=1e-6)
+    common = laplace(model, model.theta(), jacobian, residuals, readings, model_error=0.05)
+    np.testing.assert_allclose((common.covariance - bare.covariance), [[0.05**2, 0.0], [0.0, 0.0]], atol=1e-12)
+    assert laplace(model, model.theta(), jacobian, residuals, readings, 0.05, np.zeros(readings.size)
+                   ).covariance.tolist() == common.covariance.tolist()
+    with pytest.raises(ValueError, match="one per sample"):
+        laplace(model, model.theta(), jacobian, residuals, readings, 0.05, windows[:-1])
+
+
 def test_effective_samples_of_an_ar1_series():
     rng = np.random.default_rng(2)
     rho, n = 0.8, 20000

@@ -93,9 +93,9 @@ def behaviour(cfg: DictConfig) -> None:
                           replicates=b.replicates, seed=b.seed, model_error=b.model_error, workers=config_workers(cfg))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
-    c = result.classification
-    print(f"{c.label} (confidence {c.confidence:.2f}; slope {c.slope.value:.3f}, 95 % CI {c.slope.ci95[0]:.3f} to "
-          f"{c.slope.ci95[1]:.3f}); wrote {paths['json']}")
+    b = result.summary()["behaviour"]
+    print(f"{b['class']} (confidence {b['confidence']:.2f}; slope {b['slope']:.3f}, 95 % CI {b['slope_ci95'][0]:.3f} "
+          f"to {b['slope_ci95'][1]:.3f}, from the {b['slope_source']}); wrote {paths['json']}")
 
 
 def mixing(cfg: DictConfig) -> None:

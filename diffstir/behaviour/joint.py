@@ -25,7 +25,9 @@ whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkle
 ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's best start then takes
 ``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs each window's
 residuals by its own scale (``JointProblem``). Uncertainty and selection are those of ``identify`` on the weighted
-residuals: the Laplace covariance with N_eff, BIC with the best fit's N_eff.
+residuals: the Laplace covariance with N_eff plus the simulator's force error σ_m as an amplitude error of each
+window, independent between windows (the power law's index, with this interval, is the class's slope test,
+``classify``), and BIC with the best fit's N_eff.
 """
 
 from __future__ import annotations
@@ -100,6 +102,7 @@ class JointProblem:
         measured: measured readings in the windows [N]; ``train`` all True (nothing is held out).
         weights: each sample's weight min_w s_w / s_w [1] (at most 1: the best-fitted window's residuals stay in
             newtons, so the robust cost's noise floor keeps its meaning).
+        window_labels: each sample's window, its place in ``windows``.
         recording: the first recording (its sensor's resolution sets the robust loss's noise floor).
         config, density: the simulation settings and the fluid's density [kg/m³] shared by every problem (the
             fit bounds a model by the simulator's limits from them).
@@ -115,7 +118,7 @@ class JointProblem:
         for k, w in enumerate(windows):
             by_recording.setdefault(id(w.recording), []).append(k)
         self.config, self.density = config, float(density)
-        self.problems, self.masks, sample_scales = [], [], []
+        self.problems, self.masks, sample_scales, labels = [], [], [], []
         for group in by_recording.values():
             start, end = min(windows[k].start for k in group), max(windows[k].end for k in group)
             problem = StirProblem(windows[group[0]].recording, config, density, Windows(start, end, end))
@@ -124,10 +127,12 @@ class JointProblem:
             self.problems.append(problem)
             self.masks.append(mask)
             sample_scales.append((scales[group] @ inside)[mask])  # windows do not overlap
+            labels.append(np.asarray(group)[inside.argmax(axis=0)][mask])
         self.recording = self.problems[0].recording
         self.measured = np.concatenate([p.measured[m] for p, m in zip(self.problems, self.masks)])
         self.train = np.ones(self.measured.size, dtype=bool)
         self.weights = scales.min() / np.concatenate(sample_scales)
+        self.window_labels = np.concatenate(labels)
 
     def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
         """The paper's loss, mean |measured − predicted| [N], over every window (None for the held-out part)."""
@@ -173,6 +178,16 @@ class JointFit:
                 "criterion": "bic over the readings of every window, each window's residuals in units of its own "
                              "Newtonian fit's loss (weighted_rms [N]: the rms of the weighted residuals)"}
 
+    def power_law_slope(self) -> tuple[float, float] | None:
+        """The power law's slope d ln η / d ln γ̇ = n − 1 [1] and the standard error of n [1] (its Laplace
+        covariance, ``joint_fit``), or None where the power law was not fitted."""
+        if "power_law" not in self.fits:
+            return None
+        fit = self.fits["power_law"]
+        j = fit.model.names.index("n")
+        std = float(np.sqrt(self.uncertainty["power_law"].covariance[j, j]))
+        return float(fit.model.si_of_theta(fit.theta)[j]) - 1.0, std
+
     def yield_shares(self, shear_rate: float) -> dict[str, float]:
         """Each yield-stress law's share of its stress at ``shear_rate`` [1/s] carried by its yield stress,
         τ_y / (η(γ̇) γ̇) [1]."""
@@ -186,9 +201,11 @@ class JointFit:
 
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,
-              models: list[str], *, iterations: int = 5, workers: int = 1) -> JointFit:
+              models: list[str], *, iterations: int = 5, workers: int = 1, model_error: float = 0.0) -> JointFit:
     """Fit each law in ``models`` to the readings of every window of ``points``, whose effective shear rates
-    [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes."""
+    [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes. Each
+    law's covariance holds the simulator's relative force error ``model_error`` σ_m as an error of each window's
+    amplitude, independent between windows, as the points' intervals do (``identify.uncertainty.laplace``)."""
     if not models:
         raise ValueError("behaviour.joint_models is empty; name at least one law of diffstir.rheology.LAWS")
     problem = JointProblem([p.window for p in points], config, density, [p.loss for p in points])
@@ -233,8 +250,9 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
                 for job, fit in zip(polish, pool.map(polish))}
     weights = problem.weights
     residuals = {n: weights * (f.predicted - problem.measured) for n, f in fits.items()}
-    uncertainty = {n: laplace(f.model, f.theta, weights[:, None] * f.jacobian, residuals[n])
-                   for n, f in fits.items()}
+    uncertainty = {n: laplace(f.model, f.theta, weights[:, None] * f.jacobian, residuals[n],
+                              readings=weights * f.predicted, model_error=model_error,
+                              windows=problem.window_labels) for n, f in fits.items()}
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples
     bics = {n: bic(r, fits[n].model.size, n_effective) for n, r in residuals.items()}

@@ -25,7 +25,7 @@ from ..identify.uncertainty import MODEL_FORCE_ERROR
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .apparent import ViscosityPoint, window_viscosity
-from .classify import YIELD_SHARE_SIGMAS, Classification, classify, joint_yield_test
+from .classify import YIELD_SHARE_SIGMAS, Classification, JointIndex, classify, joint_yield_test
 from .joint import JointFit, joint_fit
 from .windows import PAUSE_SPEED, speed_windows
 
@@ -72,9 +72,10 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         density: the fluid's density [kg/m³], used only when no recording has a density block.
         iterations: Gauss-Newton iterations of each window's Newtonian fit.
         joint_models: laws fitted to all speeds at once (empty: no joint fit); ``joint_iterations`` their
-            Gauss-Newton iterations. With laws both with and without a yield stress among them, the joint fit
-            decides the yield stress (``classify``, 3), counting a yield stress that carries more than
-            ``YIELD_SHARE_SIGMAS`` σ_m of the stress at the slowest speed.
+            Gauss-Newton iterations. With the power law among them, its index decides the slope test
+            (``classify``, 4); with laws both with and without a yield stress, the joint fit decides the yield
+            stress (``classify``, 3), counting a yield stress that carries more than ``YIELD_SHARE_SIGMAS`` σ_m of
+            the stress at the slowest speed.
         speed_tolerance, min_window, pause_speed: what counts as one speed (``windows.speed_windows``).
         replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
@@ -106,7 +107,9 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     joint = None
     if joint_models:
         joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
-                          workers=workers)
+                          workers=workers, model_error=model_error)
+        slope = joint.power_law_slope()
+        result = result.with_joint_index(None if slope is None else JointIndex(*slope))
         test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())), YIELD_SHARE_SIGMAS * model_error)
         result = result.with_joint_yield_test(test)
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)

@@ -1,5 +1,5 @@
 """The behaviour report: ``report.json`` (SI units), ``report.md`` and the plots ``viscosity_vs_speed.png`` (the
-paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the slope's
+paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the points' slope
 line and the laws fitted to all speeds)."""
 
 from __future__ import annotations
@@ -26,7 +26,10 @@ def markdown(summary: dict) -> str:
     b = summary["behaviour"]
     lo, hi = b["slope_ci95"]
     lines = [f"# Behaviour: **{b['class']}** (confidence {b['confidence']:.2f})", "",
-             f"- slope d ln η / d ln γ̇ = {b['slope']:.3f} (95 % CI {lo:.3f} to {hi:.3f}; Birge ratio "
+             f"- slope d ln η / d ln γ̇ = {b['slope']:.3f} (95 % CI {lo:.3f} to {hi:.3f}; from the "
+             f"{b['slope_source']})",
+             f"- the per-speed points' slope {b['points_slope']['value']:.3f} (95 % CI "
+             f"{b['points_slope']['ci95'][0]:.3f} to {b['points_slope']['ci95'][1]:.3f}; Birge ratio "
              f"{b['birge_ratio']:.2f})",
              f"- density {summary['density']['value']:.1f} kg/m³ ({summary['density']['source']})"]
     if b["yield_test"]["statistic"] is not None:
@@ -83,7 +86,7 @@ def plot(result: Behaviour, out: Path) -> dict[str, Path]:
     ax.errorbar(rate, eta, yerr=[eta - lo, hi - eta], fmt="ko", capsize=3, label="per speed (95 %)")
     grid = np.logspace(np.log10(rate.min()) - 0.3, np.log10(rate.max()) + 0.3, 100)
     ax.loglog(grid, np.exp(cls.slope.intercept) * grid**cls.slope.value, "k:",
-              label=f"slope {cls.slope.value:.2f} [{cls.slope.ci95[0]:.2f}, {cls.slope.ci95[1]:.2f}]")
+              label=f"points' slope {cls.slope.value:.2f} [{cls.slope.ci95[0]:.2f}, {cls.slope.ci95[1]:.2f}]")
     if result.joint is not None:
         for name, fit in result.joint.fits.items():
             label = f"{name} (joint fit)" + (" *" if name == result.joint.selected else "")

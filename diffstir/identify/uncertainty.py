@@ -1,7 +1,7 @@
 """Uncertainty of a fit: the Laplace (Gauss-Newton) covariance of θ, corrected for correlated residuals, plus the
 simulator's own error.
 
-cov(θ) = s² (JᵀJ)⁻¹ · N / N_eff + σ_m² g gᵀ,   g = J⁺ p,
+cov(θ) = s² (JᵀJ)⁻¹ · N / N_eff + σ_m² Σ_w g_w g_wᵀ,   g_w = J⁺ p_w,
 
 with J = d readings / d θ on the fitted samples, s² = RSS / (N - k), N_eff = N (1 - ρ) / (1 + ρ) the effective
 number of independent samples for residuals with lag-1 autocorrelation ρ (an AR(1) model: sensor lag, filtering and
@@ -9,7 +9,10 @@ model error make neighbouring residuals alike, and treating them as independent 
 narrow). The second term is the fitting simulator's discretisation error, taken as a common relative error ε of
 its force, ε ~ N(0, σ_m²): a reading p(1 + ε) moves the least-squares θ by ε J⁺ p. It does not shrink with more
 data and no residual shows it, because θ absorbs it (a grid that reads 3 % low returns a viscosity that much
-high); σ_m comes from the simulator's validation against closed forms (``MODEL_FORCE_ERROR``).
+high); σ_m comes from the simulator's validation against closed forms (``MODEL_FORCE_ERROR``). Readings of several
+speed windows (``windows``) each get their own ε_w, independent between windows: p_w is p on window w's samples
+and zero elsewhere. One window (the default) is the common error; a law fitted to several speeds then also learns
+how the error's differences between speeds move its index.
 
 A parameter is identifiable when its 95 % interval is narrower than a factor ``MAX_FACTOR`` each way (log-scaled)
 or ``MAX_LINEAR_HALF_WIDTH`` (dimensionless indices) and it did not end on a bound.
@@ -80,9 +83,11 @@ def effective_samples(residuals: np.ndarray) -> float:
 
 
 def laplace(model: FitModel, theta: np.ndarray, jacobian: np.ndarray, residuals: np.ndarray,
-            readings: np.ndarray | None = None, model_error: float = 0.0) -> Uncertainty:
+            readings: np.ndarray | None = None, model_error: float = 0.0,
+            windows: np.ndarray | None = None) -> Uncertainty:
     """The covariance at ``theta`` from the fitted samples' ``jacobian`` (N, k) and ``residuals`` (N,) [N], with
-    the simulator's relative force error ``model_error`` σ_m acting on its ``readings`` p (N,) [N] (module
+    the simulator's relative force error ``model_error`` σ_m acting on its ``readings`` p (N,) [N], independently
+    in each window of samples (``windows``: each sample's window label, (N,); default one window) (module
     docstring), and 95 % intervals, identifiability and bound flags."""
     n, k = jacobian.shape
     n_eff = min(effective_samples(residuals), float(n))
@@ -91,8 +96,13 @@ def laplace(model: FitModel, theta: np.ndarray, jacobian: np.ndarray, residuals:
     seen = singular > singular.max(initial=0.0) * 1e-8 if singular.size else np.zeros(0, bool)
     covariance = (vt[seen].T / singular[seen] ** 2) @ vt[seen] * s2 * n / n_eff
     if model_error > 0.0 and readings is not None:
-        shift = vt[seen].T @ ((u[:, seen].T @ readings) / singular[seen])  # J⁺ p: dθ per unit relative error
-        covariance = covariance + model_error**2 * np.outer(shift, shift)
+        labels = np.zeros(n, dtype=int) if windows is None else np.asarray(windows)
+        if labels.shape != (n,):
+            raise ValueError(f"windows: {labels.shape} labels for {n} samples; expected one per sample")
+        for label in np.unique(labels):
+            p = np.where(labels == label, readings, 0.0)
+            shift = vt[seen].T @ ((u[:, seen].T @ p) / singular[seen])  # J⁺ p_w: dθ per unit relative error
+            covariance = covariance + model_error**2 * np.outer(shift, shift)
     blind = np.any(np.abs(vt[~seen]) > 1e-6, axis=0) if (~seen).any() else np.zeros(k, bool)
     covariance[blind, :] = np.inf
     covariance[:, blind] = np.inf
