@@ -49,8 +49,10 @@ def test_joint_fit_tells_a_yield_stress_from_a_power_law(law, label, tmp_path):
     assert c.label == label
     if label == "yield_stress":  # strong evidence at least: 2 ln B > 6
         assert c.joint.delta_bic > 6.0 and c.joint.weight > 0.95
-    else:  # the nested law wins nothing that pays for its parameter
+    else:  # the nested law wins nothing that pays for its parameter, and the slope is the power law's own index
         assert c.joint.weight < 0.5
+        lo, hi = c.index.ci95
+        assert lo <= law["params"]["n"] - 1 <= hi and c.summary()["slope_source"].startswith("joint")
     # the report states the test that decided
     paths = write_behaviour_report(result, tmp_path)
     stated = json.loads(paths["json"].read_text())["behaviour"]
