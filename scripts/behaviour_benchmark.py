@@ -17,6 +17,7 @@ fit, so the fit meets a discretisation gap. Prints one row per fluid and the con
     python scripts/behaviour_benchmark.py --fit-sim sim/coarse2d.yaml --truth-sim sim/coarse2d.yaml \
         --truth-dx 0.004 --model-error 0.063    # the 5 mm grid against a 4 mm truth, about 4x faster
     python scripts/behaviour_benchmark.py --speeds 0.005 0.01 0.02 0.04 0.08 0.16   # slower speeds too
+    python scripts/behaviour_benchmark.py --joint-models power_law --slope-test joint_index   # the joint index decides
 """
 
 from __future__ import annotations
@@ -99,6 +100,8 @@ def main() -> None:
                         help="relative force error of the fitting grid in every window's interval (0: none)")
     parser.add_argument("--joint-models", nargs="*", default=[], help="laws fitted to all speeds at once")
     parser.add_argument("--joint-iterations", type=int, default=5, help="Gauss-Newton iterations of each joint law")
+    parser.add_argument("--slope-test", default="points", choices=["points", "joint_index"],
+                        help="what the slope test reads (diffstir.behaviour.characterise)")
     parser.add_argument("--workers", type=int, default=1, help="processes for the joint laws")
     parser.add_argument("--out", type=Path, default=None, help="write each fluid's summary JSON here")
     args = parser.parse_args()
@@ -107,8 +110,8 @@ def main() -> None:
     started = time.perf_counter()
     confusion = np.zeros((len(CLASSES), len(CLASSES) + 1), dtype=int)
     print("| fluid | true class | class (confidence) | slope [95 % CI] | yield Λ | joint: selected, yield weight "
-          "(ΔBIC) | seconds |")
-    print("|---|---|---|---|---|---|---|")
+          "(ΔBIC) | joint index's slope [95 % CI], z against the points' | seconds |")
+    print("|---|---|---|---|---|---|---|---|")
     for name in args.fluids:
         truth, law, _ = FLUIDS[name]
         t0 = time.perf_counter()
@@ -116,10 +119,11 @@ def main() -> None:
         try:
             result = characterise([lab.recording], config=fit_config, iterations=args.iterations,
                                   joint_models=args.joint_models, joint_iterations=args.joint_iterations,
-                                  model_error=args.model_error, workers=args.workers)
+                                  model_error=args.model_error, slope_test=args.slope_test, workers=args.workers)
         except RecordingError as error:  # the classifier refuses (e.g. no speed resolved): an outcome to count
             confusion[CLASSES.index(truth), -1] += 1
-            print(f"| {name} | {truth} | refused: {error} | - | - | - | {time.perf_counter() - t0:.0f} |", flush=True)
+            print(f"| {name} | {truth} | refused: {error} | - | - | - | - | {time.perf_counter() - t0:.0f} |",
+                  flush=True)
             continue
         summary = result.summary()
         b = summary["behaviour"]
@@ -127,9 +131,12 @@ def main() -> None:
         stat, joint = b["yield_test"]["statistic"], b["yield_test"]["joint"]
         selected = "-" if summary["joint_fit"] is None else summary["joint_fit"]["selected"]
         evidence = "" if joint is None else f", {joint['weight']:.2f} ({joint['delta_bic']:+.1f})"
+        check = b.get("slope_check")
+        index = "-" if check is None else (f"{check['joint_index_slope']:.3f} [{check['joint_index_ci95'][0]:.3f}, "
+                                           f"{check['joint_index_ci95'][1]:.3f}], {check['z']:+.1f}")
         print(f"| {name} | {truth} | {b['class']} ({b['confidence']:.2f}) | {b['slope']:.3f} "
               f"[{b['slope_ci95'][0]:.3f}, {b['slope_ci95'][1]:.3f}] | {'-' if stat is None else f'{stat:.2f}'} | "
-              f"{selected}{evidence} | {time.perf_counter() - t0:.0f} |", flush=True)
+              f"{selected}{evidence} | {index} | {time.perf_counter() - t0:.0f} |", flush=True)
         if args.out is not None:
             args.out.mkdir(parents=True, exist_ok=True)
             (args.out / f"{name}.json").write_text(json.dumps({"truth": truth, "law": law, **summary}, indent=2))

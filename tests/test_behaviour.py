@@ -13,7 +13,7 @@ from scipy import stats
 
 from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows
 from diffstir.behaviour.apparent import with_baseline
-from diffstir.behaviour.classify import YIELD_CRITICAL, JointIndex
+from diffstir.behaviour.classify import YIELD_CRITICAL, JointIndex, slope_agreement
 from diffstir.behaviour.joint import paste_start
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
@@ -212,6 +212,23 @@ def test_the_joint_power_laws_index_decides_the_slope_test(index, label):
     assert stated["points_slope"]["value"] == points.slope.value and stated["slope_source"].startswith("joint")
 
 
+def test_the_report_says_whether_the_joint_index_and_the_points_agree():
+    g = np.logspace(0, 2, 6)
+    points = classify(g, 0.5 * g**-0.1, np.full(g.size, 0.01), replicates=0).slope  # slope -0.1, std ~0.004
+    near = slope_agreement(points, JointIndex(-0.09, 0.01))
+    assert near["agree"] and near["difference"] == pytest.approx(-0.09 - points.value)
+    assert near["z"] == pytest.approx(near["difference"] / math.hypot(points.std, 0.01))
+    assert not slope_agreement(points, JointIndex(0.06, 0.008))["agree"]  # castor oil on the 5 mm grid
+
+
+def test_characterise_refuses_an_unknown_slope_test_before_simulating():
+    recording = programme_recording()
+    with pytest.raises(ValueError, match="behaviour.slope_test = 'index'; expected one of"):
+        characterise([recording], config=FAST, slope_test="index")
+    with pytest.raises(ValueError, match="add power_law to behaviour.joint_models"):
+        characterise([recording], config=FAST, slope_test="joint_index", joint_models=("herschel_bulkley",))
+
+
 def test_a_falling_index_leaves_the_yield_stress_to_the_yield_tests():
     g = np.logspace(-2, 2, 6)
     plateau = classify(g, 2.0 / g + 0.01, np.full(g.size, 0.01), replicates=50)  # a Bingham plastic's points
@@ -273,7 +290,8 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
 
 def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     result = characterise([lab_recordings["thinning"]], config=FAST, iterations=2,
-                          joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50, workers=2)
+                          joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50, workers=2,
+                          slope_test="joint_index")
     c = result.classification
     # Metzner-Otto: a power law's Newtonian-equivalent viscosity goes as U^(n-1) in creeping flow; inertia and the
     # capped far field flatten it, so the per-speed slope only has to be negative; the joint fit, through the same
@@ -283,7 +301,7 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     assert joint.selected == "power_law"  # one more parameter, and BIC still prefers it to Newtonian
     lo, hi = joint.uncertainty["power_law"].ci95["n"]
     assert lo <= 0.4 <= hi
-    # the joint index decides the slope test: n − 1 with the same interval
+    # slope_test="joint_index": n − 1 with the same interval decides the slope test
     assert c.label == "shear_thinning" and c.index.ci95 == pytest.approx((lo - 1, hi - 1))
     # the laws were fitted in two worker processes, as FitJobs on diffstir.parallel.Workers, whose results equal
     # those fitted in one process (test_identify's test_models_fitted_in_parallel_processes_equal_those_fitted_in_one)

@@ -51,13 +51,15 @@ def test_joint_fit_tells_a_yield_stress_from_a_power_law(law, label, tmp_path):
         assert c.joint.delta_bic > 6.0 and c.joint.weight > 0.95
     else:  # the nested law wins nothing that pays for its parameter, and the slope is the power law's own index
         assert c.joint.weight < 0.5
-        lo, hi = c.index.ci95
-        assert lo <= law["params"]["n"] - 1 <= hi and c.summary()["slope_source"].startswith("joint")
+        check = result.summary()["behaviour"]["slope_check"]
+        lo, hi = check["joint_index_ci95"]
+        assert lo <= law["params"]["n"] - 1 <= hi
     # the report states the test that decided
     paths = write_behaviour_report(result, tmp_path)
     stated = json.loads(paths["json"].read_text())["behaviour"]
     assert stated["class"] == label and stated["yield_test"]["joint"]["weight"] == pytest.approx(c.joint.weight)
     assert "yield stress by the joint fit" in paths["md"].read_text()
+    assert "the joint power law's slope n − 1" in paths["md"].read_text()
 
 
 def test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress():

@@ -90,7 +90,8 @@ def behaviour(cfg: DictConfig) -> None:
                           config=instantiate(cfg.sim), density=cfg.density, iterations=b.iterations,
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, pause_speed=b.pause_speed,
-                          replicates=b.replicates, seed=b.seed, model_error=b.model_error, workers=config_workers(cfg))
+                          replicates=b.replicates, seed=b.seed, model_error=b.model_error,
+                          slope_test=b.slope_test, workers=config_workers(cfg))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     b = result.summary()["behaviour"]

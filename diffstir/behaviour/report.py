@@ -32,6 +32,13 @@ def markdown(summary: dict) -> str:
              f"{b['points_slope']['ci95'][0]:.3f} to {b['points_slope']['ci95'][1]:.3f}; Birge ratio "
              f"{b['birge_ratio']:.2f})",
              f"- density {summary['density']['value']:.1f} kg/m³ ({summary['density']['source']})"]
+    check = b.get("slope_check")
+    if check is not None:
+        verdict = ("they agree" if check["agree"] else "they disagree beyond both intervals: the simulator's error "
+                   "between speeds exceeds its stated force error")
+        lines.append(f"- the joint power law's slope n − 1 = {check['joint_index_slope']:.3f} (95 % CI "
+                     f"{check['joint_index_ci95'][0]:.3f} to {check['joint_index_ci95'][1]:.3f}), "
+                     f"{check['z']:+.1f} σ from the points' slope; {verdict}")
     if b["yield_test"]["statistic"] is not None:
         lines.append(f"- yield-stress test on the points: Λ = {b['yield_test']['statistic']:.2f} (critical "
                      f"{b['yield_test']['critical']:.2f})")
