@@ -37,20 +37,21 @@ fitted (a curved flow curve inflates the straight line's χ² with misfit, not n
    glycerol on the 5 mm grid a Herschel-Bulkley fit with 2.7 % of the slowest stress as yield stress, ΔBIC 2.4,
    otherwise called the liquid a yield-stress fluid, docs/accuracy.md.)
 4. **Slope from the joint fit** (``with_joint_index``, ``slope_test="joint_index"`` in ``pipeline``). With the
-   power law τ = k γ̇ⁿ among the joint laws, its index gives the slope in place of the points', b = n − 1, with the standard error s of n from the joint fit's
-   Laplace covariance, which holds the simulator's relative force error σ_m as an amplitude error of each speed
-   window, independent between windows (``identify.uncertainty.laplace``), as the points' intervals hold it. Test
-   1's rule then applies to b ± 1.96 s; a viscosity that falls keeps the points' yield-stress verdict until the
-   joint yield test (3) decides. The confidence is the share of replicates b* ~ N(b, s²) that the same rule puts in
-   the same class (Φ the standard normal CDF, z = b / s): Φ(1.96 − z) − Φ(−1.96 − z) newtonian,
-   1 − Φ(1.96 − z) rising, Φ(−1.96 − z) falling. The points are Newtonian-equivalent viscosities, each read at
-   one effective shear rate, where the fluid around the rod is sheared over a band of rates; the joint fit
-   simulates the law itself at every speed. On the 5 mm grid the points' slope leaned thinning on three liquids by
-   0.09-0.14 (castor oil, glycerol, the n = 1.1 thickener) where the joint index erred by +0.06, +0.04 and +0.02
-   (docs/accuracy.md); but the index's interval stayed at ±0.015, σ_m per window included: an error of each
-   window's level hardly moves n, which the windows' waveforms pin as well, and the grid's error of the waveform
-   is in no σ. So the points decide by default, and the report compares the two (``slope_agreement``): where they differ by more than their
-   intervals allow, the simulator's error between speeds exceeds what σ_m says.
+   power law τ = k γ̇ⁿ among the joint laws, its index gives the slope in place of the points', b = n − 1, with
+   the standard error s of n from the joint fit's Laplace covariance, which holds the simulator's relative force
+   error σ_m as an amplitude error of each speed window, independent between windows
+   (``identify.uncertainty.laplace``), as the points' intervals hold it. Test 1's rule then applies to
+   b ± 1.96 s; a viscosity that falls keeps the points' yield-stress verdict until the joint yield test (3)
+   decides. The confidence is the share of replicates b* ~ N(b, s²) that the same rule puts in the same class
+   (Φ the standard normal CDF, z = b / s): Φ(1.96 − z) − Φ(−1.96 − z) newtonian, 1 − Φ(1.96 − z) rising,
+   Φ(−1.96 − z) falling. The points are Newtonian-equivalent viscosities, each read at one effective shear rate,
+   where the fluid around the rod is sheared over a band of rates; the joint fit simulates the law itself at
+   every speed. On the 5 mm grid the points' slope leaned thinning on three liquids by 0.09-0.14 (castor oil,
+   glycerol, the n = 1.1 thickener) where the joint index erred by +0.06, +0.04 and +0.02 (docs/accuracy.md);
+   but the index's interval stayed at ±0.015, σ_m per window included: an error of each window's level hardly
+   moves n, which the windows' waveforms pin as well, and the grid's error of the waveform is in no σ. So the
+   points decide by default, and the report compares the two (``slope_agreement``): where they differ by more
+   than their intervals allow, the simulator's error between speeds exceeds what σ_m says.
 """
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's b
 ``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs each window's
 residuals by its own scale (``JointProblem``). Uncertainty and selection are those of ``identify`` on the weighted
 residuals: the Laplace covariance with N_eff plus the simulator's force error σ_m as an amplitude error of each
-window, independent between windows (the power law's index, with this interval, is the class's slope test,
-``classify``), and BIC with the best fit's N_eff.
+window, independent between windows (the power law's index with this interval is checked against the points'
+slope, ``classify``), and BIC with the best fit's N_eff.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The behaviour report: ``report.json`` (SI units), ``report.md`` and the plots ``viscosity_vs_speed.png`` (the
-paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the points' slope
-line and the laws fitted to all speeds)."""
+paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the points'
+slope line and the laws fitted to all speeds)."""
 
 from __future__ import annotations
 
