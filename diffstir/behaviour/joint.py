@@ -18,12 +18,12 @@ the points': the points are Newtonian equivalents, which put a paste's stress at
 pastes and the points' own flow curve are screened (``screened_starts``): each simulated once, its stress scaled by
 the least-squares amplitude of its readings on the measured ones, and the one that then reads closest kept. Where
 the fitting grid reads every law 20-25 % high, as the 5 mm grid does at 0.3-0.6 m/s, the right shape at the wrong
-scale otherwise reads worse than a wrong shape at the right one (docs/accuracy.md). A law with a yield stress also starts from that best
-liquid fit itself, with a yield stress of ``TRACE_YIELD_SHARE`` of its lowest stress (``LIQUID_START_ITERATIONS``
-steps): a law that contains the liquid law then ends no worse than it, so that BIC, not the optimiser, decides
-whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkley fit from the other two starts
-ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's best start then takes
-``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs each window's
+scale otherwise reads worse than a wrong shape at the right one (docs/accuracy.md). A law with a yield stress
+also starts from that best liquid fit itself, with a yield stress of ``TRACE_YIELD_SHARE`` of its lowest stress
+(``LIQUID_START_ITERATIONS`` steps): a law that contains the liquid law then ends no worse than it, so that BIC,
+not the optimiser, decides whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkley fit
+from the other two starts ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's best
+start then takes ``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs each window's
 residuals by its own scale (``JointProblem``). Uncertainty and selection are those of ``identify`` on the weighted
 residuals: the Laplace covariance with N_eff plus the simulator's force error σ_m as an amplitude error of each
 window, independent between windows (the power law's index with this interval is checked against the points'

@@ -9,10 +9,11 @@ P is component-major, (C, N, d + 1); G is (num_nodes, C). The two are adjoint, a
 positions through the weights, which are differentiated too.
 
 Two implementations give the same numbers. ``fused=False``: torch tensor ops, on any device (under
-``torch.compile`` inductor fuses them with their neighbours). ``fused=True``: C++ loops for the CPU (``csrc/transfer.cpp``, compiled on first use with ``torch.utils.cpp_extension`` and cached per
-machine) that compute each particle's weights once and touch each of its nodes once, with their own derivatives
-in reverse and forward mode, registered as torch operators so that ``torch.compile`` calls them from its graph;
-the torch ops build (C, N, 3^d) intermediates and scatter them instead.
+``torch.compile`` inductor fuses them with their neighbours). ``fused=True``: C++ loops for the CPU
+(``csrc/transfer.cpp``, compiled on first use with ``torch.utils.cpp_extension`` and cached per machine) that
+compute each particle's weights once and touch each of its nodes once, with their own derivatives in reverse and
+forward mode, registered as torch operators so that ``torch.compile`` calls them from its graph; the torch ops
+build (C, N, 3^d) intermediates and scatter them instead.
 
 Processes that start together build the kernels once: the first holds a lock file in the build directory while it
 compiles, the others wait. torch's own wait has no timeout, so a builder killed mid-build would leave every later
