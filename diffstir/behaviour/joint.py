@@ -41,10 +41,9 @@ import torch
 from torch import Tensor, nn
 
 from ..identify import FitModel, FitResult, StirProblem, Windows
-from ..identify.jobs import FitJob
+from ..identify.jobs import FitJob, ReadingJob
 from ..identify.initial import YIELD_SHARES, initial_model
 from ..identify.nuisance import NO_NUISANCE
-from ..identify.optimise import Readings
 from ..identify.selection import bic, rank
 from ..identify.uncertainty import Uncertainty, laplace
 from ..mpm import SimConfig
@@ -296,21 +295,6 @@ def paste_start(name: str, curve: FlowCurve, yield_share: float = 0.5) -> FitMod
     return FitModel.named(name, **within_bounds(name, params))
 
 
-@dataclass
-class StartReading:
-    """One simulation of ``model`` on ``problem``: its readings [N] in the windows, for a screen of starts (a job for
-    ``diffstir.parallel.Workers``)."""
-
-    stage: str
-    key: str
-    problem: JointProblem
-    model: FitModel
-    priority: tuple[bool, int] = (True, 1)
-
-    def run(self, report) -> np.ndarray:
-        return Readings(self.problem, self.model)(self.model.theta())
-
-
 @dataclass(frozen=True)
 class ScreenedStart:
     """The start a screen kept: its ``label``, the ``amplitude`` c [1] its stress was scaled by, the weighted rms
@@ -331,7 +315,7 @@ def screened_starts(pool: Workers, problem: JointProblem,
     (``FitModel.stress_scaled``). A candidate whose simulation fails is passed
     over; a law all of whose candidates fail keeps its first, unscaled."""
     jobs = [(name, label, model) for name, starts in candidates.items() for label, model in starts.items()]
-    readings = pool.map([StartReading("joint", f"{name}/{label}", problem, model) for name, label, model in jobs])
+    readings = pool.map([ReadingJob("joint", f"{name}/{label}", problem, model) for name, label, model in jobs])
     measured, w = problem.measured, problem.weights
     best: dict[str, ScreenedStart] = {}
     for (name, label, model), p in zip(jobs, readings):

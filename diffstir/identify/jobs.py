@@ -23,11 +23,10 @@ from typing import Callable
 import numpy as np
 
 from ..parallel import Workers
-from .initial import mean_readings
 from .magnitude import MAX_STEPS, MagnitudeEstimate, magnitude_estimate
 from .models import FitModel
 from .nuisance import SensorNuisance
-from .optimise import FitResult, fit_model
+from .optimise import FitResult, Readings, fit_model
 from .problem import StirProblem
 
 
@@ -81,8 +80,9 @@ class FitJob:
 
 @dataclass
 class ReadingJob:
-    """One forward simulation of ``model`` on ``problem``: its mean |reading| [N] over the fitted samples (the
-    Newtonian ladder's and the effective shear rate's probes, ``initial``)."""
+    """One forward simulation of ``model`` on ``problem``: its readings [N] on the fitted samples (the Newtonian
+    ladder's and the effective shear rate's probes, ``initial``; the joint fit's start screens,
+    ``behaviour.joint``)."""
 
     stage: str
     key: str
@@ -90,8 +90,9 @@ class ReadingJob:
     model: FitModel
     priority: tuple[bool, int] = (True, 1)  # probes come before the fits that wait for them
 
-    def run(self, report: Callable[[tuple], None]) -> float:
-        return mean_readings(self.problem, [self.model], lambda *data: report(("evaluation", self.stage, *data)))[0]
+    def run(self, report: Callable[[tuple], None]) -> np.ndarray:
+        readings = Readings(self.problem, self.model, lambda *data: report(("evaluation", self.stage, *data)))
+        return readings(self.model.theta())
 
 
 @dataclass
@@ -112,5 +113,6 @@ class MagnitudeJob:
 
 
 def mean_readings_on(workers: Workers, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:
-    """``initial.MeanReadings`` side by side: the mean |reading| [N] of each model on ``problem``, in order."""
-    return workers.map([ReadingJob(stage, f"probe{k}", problem, model) for k, model in enumerate(models)])
+    """``initial.mean_readings`` side by side: the mean |reading| [N] of each model on ``problem``, in order."""
+    readings = workers.map([ReadingJob(stage, f"probe{k}", problem, model) for k, model in enumerate(models)])
+    return [problem.mean_reading(r) for r in readings]
