@@ -36,6 +36,8 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from diffstir.behaviour import CLASSES, characterise
+from diffstir.behaviour.classify import slope_agreement
+from diffstir.behaviour.pipeline import SLOPE_TESTS, reclassify, reported_joint_index
 from diffstir.identify.uncertainty import MODEL_FORCE_ERROR
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.recording import RecordingError
@@ -100,32 +102,25 @@ def main() -> None:
                         help="relative force error of the fitting grid in every window's interval (0: none)")
     parser.add_argument("--joint-models", nargs="*", default=[], help="laws fitted to all speeds at once")
     parser.add_argument("--joint-iterations", type=int, default=5, help="Gauss-Newton iterations of each joint law")
-    parser.add_argument("--slope-test", default="points", choices=["points", "joint_index"],
+    parser.add_argument("--slope-test", default="combined", choices=list(SLOPE_TESTS),
                         help="what the slope test reads (diffstir.behaviour.characterise)")
     parser.add_argument("--workers", type=int, default=1, help="processes for the joint laws")
     parser.add_argument("--out", type=Path, default=None, help="write each fluid's summary JSON here")
+    parser.add_argument("--from-reports", type=Path, nargs="+", default=None,
+                        help="decide the classes of these saved summaries (--out's JSON) again under --slope-test "
+                             "and --model-error, without simulating")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    fit_config = instantiate(OmegaConf.load(ROOT / "conf" / args.fit_sim))
     started = time.perf_counter()
     confusion = np.zeros((len(CLASSES), len(CLASSES) + 1), dtype=int)
     print("| fluid | true class | class (confidence) | slope [95 % CI] | yield Λ | joint: selected, yield weight "
           "(ΔBIC) | joint index's slope [95 % CI], z against the points' | seconds |")
     print("|---|---|---|---|---|---|---|---|")
-    for name in args.fluids:
-        truth, law, _ = FLUIDS[name]
-        t0 = time.perf_counter()
-        lab = lab_recording(name, args)
-        try:
-            result = characterise([lab.recording], config=fit_config, iterations=args.iterations,
-                                  joint_models=args.joint_models, joint_iterations=args.joint_iterations,
-                                  model_error=args.model_error, slope_test=args.slope_test, workers=args.workers)
-        except RecordingError as error:  # the classifier refuses (e.g. no speed resolved): an outcome to count
+    outcomes = reports(args) if args.from_reports else simulated(args)
+    for name, truth, summary, seconds in outcomes:
+        if summary is None:  # the classifier refused (e.g. no speed resolved): an outcome to count
             confusion[CLASSES.index(truth), -1] += 1
-            print(f"| {name} | {truth} | refused: {error} | - | - | - | - | {time.perf_counter() - t0:.0f} |",
-                  flush=True)
             continue
-        summary = result.summary()
         b = summary["behaviour"]
         confusion[CLASSES.index(truth), CLASSES.index(b["class"])] += 1
         stat, joint = b["yield_test"]["statistic"], b["yield_test"]["joint"]
@@ -136,10 +131,7 @@ def main() -> None:
                                            f"{check['joint_index_ci95'][1]:.3f}], {check['z']:+.1f}")
         print(f"| {name} | {truth} | {b['class']} ({b['confidence']:.2f}) | {b['slope']:.3f} "
               f"[{b['slope_ci95'][0]:.3f}, {b['slope_ci95'][1]:.3f}] | {'-' if stat is None else f'{stat:.2f}'} | "
-              f"{selected}{evidence} | {index} | {time.perf_counter() - t0:.0f} |", flush=True)
-        if args.out is not None:
-            args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / f"{name}.json").write_text(json.dumps({"truth": truth, "law": law, **summary}, indent=2))
+              f"{selected}{evidence} | {index} | {seconds:.0f} |", flush=True)
     print("\nConfusion matrix (rows: true class, columns: classified as)\n")
     print("| true \\ classified | " + " | ".join(CLASSES) + " | refused |")
     print("|---|" + "---|" * (len(CLASSES) + 1))
@@ -148,6 +140,43 @@ def main() -> None:
     correct = int(np.trace(confusion))
     print(f"\n{correct}/{confusion.sum()} correct; {time.perf_counter() - started:.0f} s on {platform.machine()}, "
           f"torch {torch.__version__}, {torch.get_num_threads()} thread")
+
+
+def simulated(args: argparse.Namespace):
+    """(name, true class, summary or None where refused, seconds) of each fluid of ``args.fluids``, stirred by the
+    lab and classified; each summary also written to ``args.out`` when given."""
+    fit_config = instantiate(OmegaConf.load(ROOT / "conf" / args.fit_sim))
+    for name in args.fluids:
+        truth, law, _ = FLUIDS[name]
+        t0 = time.perf_counter()
+        lab = lab_recording(name, args)
+        try:
+            result = characterise([lab.recording], config=fit_config, iterations=args.iterations,
+                                  joint_models=args.joint_models, joint_iterations=args.joint_iterations,
+                                  model_error=args.model_error, slope_test=args.slope_test, workers=args.workers)
+        except RecordingError as error:
+            print(f"| {name} | {truth} | refused: {error} | - | - | - | - | {time.perf_counter() - t0:.0f} |",
+                  flush=True)
+            yield name, truth, None, time.perf_counter() - t0
+            continue
+        summary = result.summary()
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / f"{name}.json").write_text(json.dumps({"truth": truth, "law": law, **summary}, indent=2))
+        yield name, truth, summary, time.perf_counter() - t0
+
+
+def reports(args: argparse.Namespace):
+    """The same for the saved summaries ``args.from_reports``, their classes decided again
+    (``diffstir.behaviour.reclassify``; seconds: each run's own)."""
+    for path in args.from_reports:
+        summary = json.loads(path.read_text())
+        c = reclassify(summary, slope_test=args.slope_test, model_error=args.model_error)
+        behaviour = c.summary()
+        index = reported_joint_index(summary)
+        if index is not None:
+            behaviour["slope_check"] = slope_agreement(c.slope, index)
+        yield path.stem, summary["truth"], {**summary, "behaviour": behaviour}, summary["seconds"]
 
 
 if __name__ == "__main__":

@@ -13,8 +13,9 @@ from scipy import stats
 
 from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows
 from diffstir.behaviour.apparent import with_baseline
-from diffstir.behaviour.classify import YIELD_CRITICAL, JointIndex, slope_agreement
+from diffstir.behaviour.classify import YIELD_CRITICAL, SlopeEstimate, combined_slope, slope_agreement
 from diffstir.behaviour.joint import paste_start
+from diffstir.behaviour.pipeline import reclassify
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
@@ -189,9 +190,9 @@ def test_joint_fit_decides_the_yield_stress(curve, bics, label):
 
 
 @pytest.mark.parametrize("index,label", [
-    (JointIndex(0.03, 0.02), "newtonian"),        # interval -0.009 to 0.069 holds 0
-    (JointIndex(0.10, 0.02), "shear_thickening"),
-    (JointIndex(-0.30, 0.05), "shear_thinning"),
+    (SlopeEstimate(0.03, 0.02), "newtonian"),        # interval -0.009 to 0.069 holds 0
+    (SlopeEstimate(0.10, 0.02), "shear_thickening"),
+    (SlopeEstimate(-0.30, 0.05), "shear_thinning"),
 ])
 def test_the_joint_power_laws_index_decides_the_slope_test(index, label):
     # points that lean thinning, as the 5 mm grid's Newtonian-equivalent points of a liquid do: the joint power
@@ -199,8 +200,8 @@ def test_the_joint_power_laws_index_decides_the_slope_test(index, label):
     g = np.logspace(0, 2, 6)
     points = classify(g, 0.5 * g**-0.1, np.full(g.size, 0.01), replicates=50)
     assert points.label == "shear_thinning"
-    result = points.with_joint_index(index)
-    assert result.label == label and result.index is index
+    result = points.with_slope_estimate(index)
+    assert result.label == label and result.estimate is index
     # the confidence: the share of replicates b* ~ N(b, s²) that the same rule puts in the same class
     z = index.value / index.std
     expected = {"newtonian": stats.norm.cdf(Z95 - z) - stats.norm.cdf(-Z95 - z),
@@ -215,10 +216,28 @@ def test_the_joint_power_laws_index_decides_the_slope_test(index, label):
 def test_the_report_says_whether_the_joint_index_and_the_points_agree():
     g = np.logspace(0, 2, 6)
     points = classify(g, 0.5 * g**-0.1, np.full(g.size, 0.01), replicates=0).slope  # slope -0.1, std ~0.004
-    near = slope_agreement(points, JointIndex(-0.09, 0.01))
+    near = slope_agreement(points, SlopeEstimate(-0.09, 0.01))
     assert near["agree"] and near["difference"] == pytest.approx(-0.09 - points.value)
     assert near["z"] == pytest.approx(near["difference"] / math.hypot(points.std, 0.01))
-    assert not slope_agreement(points, JointIndex(0.06, 0.008))["agree"]  # castor oil on the 5 mm grid
+    assert not slope_agreement(points, SlopeEstimate(0.06, 0.008))["agree"]  # castor oil on the 5 mm grid
+
+
+def test_two_reads_of_the_slope_combine_by_inverse_variance_and_widen_where_they_disagree():
+    g = np.logspace(0, 2, 6)
+    points = classify(g, 0.5 * g**-0.1, np.full(g.size, 0.01), replicates=0).slope
+    # consistent reads (|z| ≤ 1): the plain inverse-variance mean and error
+    near = SlopeEstimate(points.value + 0.5 * points.std, points.std)
+    both = combined_slope(points, near)
+    assert both.value == pytest.approx(points.value + 0.25 * points.std)
+    assert both.std == pytest.approx(points.std / math.sqrt(2))
+    # reads 6 standard errors apart, as the 5 mm grid's points and joint index of castor oil were: the mean leans to
+    # the tighter read, and its error is scaled by S = |z| (PDG), so a class the reads disagree on is not certain
+    far = SlopeEstimate(points.value + 6 * math.hypot(points.std, 0.3 * points.std), 0.3 * points.std)
+    wide = combined_slope(points, far)
+    w = np.array([1.0, 1 / 0.09])
+    assert wide.value == pytest.approx((w @ [points.value, far.value]) / w.sum())
+    assert wide.std == pytest.approx(6.0 * points.std / math.sqrt(w.sum()))
+    assert "scale factor 6.00" in wide.source
 
 
 def test_characterise_refuses_an_unknown_slope_test_before_simulating():
@@ -233,14 +252,14 @@ def test_a_falling_index_leaves_the_yield_stress_to_the_yield_tests():
     g = np.logspace(-2, 2, 6)
     plateau = classify(g, 2.0 / g + 0.01, np.full(g.size, 0.01), replicates=50)  # a Bingham plastic's points
     assert plateau.label == "yield_stress"
-    falling = plateau.with_joint_index(JointIndex(-0.8, 0.05))
+    falling = plateau.with_slope_estimate(SlopeEstimate(-0.8, 0.05))
     assert falling.label == "yield_stress" and falling.shares["shear_thinning"] == 0.0
     # the joint yield test then decides, with the index's share of a falling viscosity
     liquid = falling.with_joint_yield_test(joint_yield_test({"power_law": 0.0, "herschel_bulkley": 6.0}))
     assert liquid.label == "shear_thinning"
     assert liquid.confidence == pytest.approx(falling.shares["yield_stress"] * (1 - liquid.joint.weight))
     # an index the readings do not see leaves the points' verdict
-    assert plateau.with_joint_index(JointIndex(-0.8, math.inf)) is plateau
+    assert plateau.with_slope_estimate(SlopeEstimate(-0.8, math.inf)) is plateau
 
 
 def test_window_interval_carries_the_simulators_force_error():
@@ -302,7 +321,16 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     lo, hi = joint.uncertainty["power_law"].ci95["n"]
     assert lo <= 0.4 <= hi
     # slope_test="joint_index": n − 1 with the same interval decides the slope test
-    assert c.label == "shear_thinning" and c.index.ci95 == pytest.approx((lo - 1, hi - 1))
+    assert c.label == "shear_thinning" and c.estimate.ci95 == pytest.approx((lo - 1, hi - 1))
+    # the report holds what decides the class again under any slope test without simulating: its own test gives
+    # its own class and confidence back
+    summary = json.loads(json.dumps(result.summary()))
+    again = reclassify(summary, slope_test="joint_index", replicates=50)
+    assert again.label == c.label and again.confidence == pytest.approx(c.confidence, rel=1e-6)
+    points = reclassify(summary, slope_test="points", replicates=50)
+    assert points.slope.value == pytest.approx(c.slope.value) and points.estimate is None
+    combined = reclassify(summary, slope_test="combined", replicates=50)
+    assert combined.estimate.source.startswith("points and joint power law index combined")
     # the laws were fitted in two worker processes, as FitJobs on diffstir.parallel.Workers, whose results equal
     # those fitted in one process (test_identify's test_models_fitted_in_parallel_processes_equal_those_fitted_in_one)
 

@@ -36,22 +36,25 @@ fitted (a curved flow curve inflates the straight line's χ² with misfit, not n
    yield stress carries less is a liquid at the stirred rates and is weighed with the laws without one. (On
    glycerol on the 5 mm grid a Herschel-Bulkley fit with 2.7 % of the slowest stress as yield stress, ΔBIC 2.4,
    otherwise called the liquid a yield-stress fluid, docs/accuracy.md.)
-4. **Slope from the joint fit** (``with_joint_index``, ``slope_test="joint_index"`` in ``pipeline``). With the
-   power law τ = k γ̇ⁿ among the joint laws, its index gives the slope in place of the points', b = n − 1, with
-   the standard error s of n from the joint fit's Laplace covariance, which holds the simulator's relative force
-   error σ_m as an amplitude error of each speed window, independent between windows
-   (``identify.uncertainty.laplace``), as the points' intervals hold it. Test 1's rule then applies to
-   b ± 1.96 s; a viscosity that falls keeps the points' yield-stress verdict until the joint yield test (3)
-   decides. The confidence is the share of replicates b* ~ N(b, s²) that the same rule puts in the same class
-   (Φ the standard normal CDF, z = b / s): Φ(1.96 − z) − Φ(−1.96 − z) newtonian, 1 − Φ(1.96 − z) rising,
-   Φ(−1.96 − z) falling. The points are Newtonian-equivalent viscosities, each read at one effective shear rate,
-   where the fluid around the rod is sheared over a band of rates; the joint fit simulates the law itself at
-   every speed. On the 5 mm grid the points' slope leaned thinning on three liquids by 0.09-0.14 (castor oil,
-   glycerol, the n = 1.1 thickener) where the joint index erred by +0.06, +0.04 and +0.02 (docs/accuracy.md);
-   but the index's interval stayed at ±0.015, σ_m per window included: an error of each window's level hardly
-   moves n, which the windows' waveforms pin as well, and the grid's error of the waveform is in no σ. So the
-   points decide by default, and the report compares the two (``slope_agreement``): where they differ by more
-   than their intervals allow, the simulator's error between speeds exceeds what σ_m says.
+4. **Slope from the joint fit** (``with_slope_estimate``; ``slope_test`` in ``pipeline``). With the power law
+   τ = k γ̇ⁿ among the joint laws, its index is a second read of the slope, b_J = n − 1, with the standard error
+   s_J of n from the joint fit's Laplace covariance, which holds the simulator's relative force error σ_m as an
+   amplitude error of each speed window, independent between windows (``identify.uncertainty.laplace``), as the
+   points' intervals hold it. The points are Newtonian-equivalent viscosities, each read at one effective shear
+   rate, where the fluid around the rod is sheared over a band of rates; the joint fit simulates the law itself
+   at every speed, and the windows' waveforms, not only their levels, pin its n. The two reads are combined
+   (``combined_slope``, the default) by inverse-variance weights, b = (b_P/s_P² + b_J/s_J²) / (1/s_P² + 1/s_J²),
+   s = S / sqrt(1/s_P² + 1/s_J²), with the Particle Data Group's scale factor S = max(1, |z|),
+   z = (b_J − b_P) / sqrt(s_P² + s_J²), for measurements that disagree beyond their errors (for two,
+   S² = χ²/(N − 1) = z²; PDG, Review of Particle Physics, Introduction, "Averaging"): where the two reads
+   disagree, model error that neither interval holds is there, and the class is only as sure as they agree. Test
+   1's rule then applies to b ± 1.96 s (``slope_test="joint_index"``: to b_J ± 1.96 s_J alone); a viscosity that
+   falls keeps the points' yield-stress verdict until the joint yield test (3) decides. The confidence is the
+   share of replicates b* ~ N(b, s²) that the rule puts in the same class (Φ the standard normal CDF, z' = b/s):
+   Φ(1.96 − z') − Φ(−1.96 − z') newtonian, 1 − Φ(1.96 − z') rising, Φ(−1.96 − z') falling. On the 5 mm grid the
+   points leaned thinning by 0.09-0.14 on four liquids and the joint index thickening by 0.02-0.06, about 0.15
+   apart each time (z = 2-7), the truth between them; the index's own interval, ±0.015-0.02 with σ_m per window,
+   did not hold its error, the points' interval not theirs (docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -91,12 +94,14 @@ class Slope:
 
 
 @dataclass(frozen=True)
-class JointIndex:
-    """The slope d ln η / d ln γ̇ = n − 1 [1] of the power law fitted to every speed at once, ``value``, with its
-    standard error ``std`` [1] (module docstring, 4)."""
+class SlopeEstimate:
+    """A read of the slope d ln η / d ln γ̇ [1], ``value``, with its standard error ``std`` [1] and what it was
+    read from (``source``): the joint power law's n − 1, or that combined with the points' slope (module
+    docstring, 4)."""
 
     value: float
     std: float
+    source: str = "joint power law index (n - 1)"
 
     @property
     def ci95(self) -> tuple[float, float]:
@@ -133,8 +138,8 @@ class JointYieldTest:
 class Classification:
     """The class, its ``confidence`` [0-1], the points' slope, the yield-stress test statistic Λ (None with fewer
     than four speeds or a viscosity that does not fall), the Herschel-Bulkley fit's parameters, the share of
-    replicates in each class (``shares``), the joint fit's yield test when it decided (``joint``), and the joint
-    power law's slope when it decided the slope test (``index``)."""
+    replicates in each class (``shares``), the joint fit's yield test when it decided (``joint``), and the slope
+    estimate that decided the slope test in the points' place (``estimate``)."""
 
     label: str
     confidence: float
@@ -144,20 +149,21 @@ class Classification:
     replicates: int
     shares: dict[str, float]
     joint: JointYieldTest | None = None
-    index: JointIndex | None = None
+    estimate: SlopeEstimate | None = None
 
-    def with_joint_index(self, index: JointIndex | None) -> "Classification":
-        """The class with the slope test decided by the joint power law's ``index`` (module docstring, 4);
-        unchanged without one or where its error is not finite and > 0 (an index the readings do not see)."""
-        if index is None or not (math.isfinite(index.value) and math.isfinite(index.std) and index.std > 0):
+    def with_slope_estimate(self, estimate: SlopeEstimate | None) -> "Classification":
+        """The class with the slope test decided by ``estimate`` (module docstring, 4); unchanged without one or
+        where its error is not finite and > 0 (a slope the readings do not see)."""
+        if estimate is None or not (math.isfinite(estimate.value) and math.isfinite(estimate.std)
+                                    and estimate.std > 0):
             return self
-        lo, hi = index.ci95
+        lo, hi = estimate.ci95
         falling = "yield_stress" if self.label == "yield_stress" else "shear_thinning"
         label = "shear_thickening" if lo > 0 else "newtonian" if hi >= 0 else falling
-        p = index.shares()
+        p = estimate.shares()
         shares = {"newtonian": p["newtonian"], "shear_thinning": p["falling"] if falling == "shear_thinning" else 0.0,
                   "shear_thickening": p["rising"], "yield_stress": p["falling"] if falling == "yield_stress" else 0.0}
-        return replace(self, label=label, confidence=shares[label], shares=shares, index=index)
+        return replace(self, label=label, confidence=shares[label], shares=shares, estimate=estimate)
 
     def with_joint_yield_test(self, test: JointYieldTest | None) -> "Classification":
         """The class with the yield stress decided by the joint fit's ``test`` (module docstring, 3); unchanged
@@ -173,25 +179,47 @@ class Classification:
         return replace(self, label=label, confidence=confidence, joint=test)
 
     def summary(self) -> dict:
-        slope = self.slope if self.index is None else self.index
+        slope = self.slope if self.estimate is None else self.estimate
         return {"class": self.label, "confidence": self.confidence, "slope": slope.value,
                 "slope_ci95": list(slope.ci95), "slope_std": slope.std,
-                "slope_source": "points" if self.index is None else "joint power law index (n - 1)",
+                "slope_source": "points" if self.estimate is None else self.estimate.source,
                 "points_slope": {"value": self.slope.value, "ci95": list(self.slope.ci95), "std": self.slope.std},
                 "birge_ratio": self.slope.birge,
                 "yield_test": {"statistic": self.yield_statistic, "critical": YIELD_CRITICAL,
                                "herschel_bulkley": self.herschel_bulkley,
                                "joint": None if self.joint is None else self.joint.summary()},
                 "bootstrap_replicates": self.replicates, "bootstrap_shares": self.shares,
-                "method": ("slope of ln eta vs ln shear rate (weighted, Birge-scaled, 95 %)" if self.index is None
-                           else "slope n - 1 of the power law fitted to every speed (95 %, simulator error per "
-                                "window)") + "; yield stress: the "
+                "method": ("slope of ln eta vs ln shear rate (weighted, Birge-scaled, 95 %)" if self.estimate is None
+                           else f"slope from the {self.estimate.source} (95 %)") + "; yield stress: the "
                           + ("Schwarz weight of the joint fit's yield-stress laws above 1/2" if self.joint else
                              "slope interval holds -1 or Herschel-Bulkley beats the power law (likelihood ratio, "
                              "95 %)")}
 
 
-def slope_agreement(points: Slope, index: JointIndex) -> dict:
+def decide(points: Classification, index: SlopeEstimate | None, yield_test: JointYieldTest | None,
+           slope_test: str) -> Classification:
+    """The class of the points' ``classify`` result with the slope test read as ``slope_test`` says (``"points"``,
+    ``"joint_index"``: the joint power law's ``index`` alone, ``"combined"``: it and the points combined, the
+    points alone without an index) and the yield stress decided by the joint fit's ``yield_test`` (module
+    docstring, 3 and 4)."""
+    if slope_test == "joint_index":
+        points = points.with_slope_estimate(index)
+    elif slope_test == "combined" and index is not None:
+        points = points.with_slope_estimate(combined_slope(points.slope, index))
+    return points.with_joint_yield_test(yield_test)
+
+
+def combined_slope(points: Slope, index: SlopeEstimate) -> SlopeEstimate:
+    """The inverse-variance mean of the points' slope and the joint power law's, its standard error scaled by
+    S = max(1, |z|) where the two disagree (module docstring, 4)."""
+    weights = np.array([points.std, index.std]) ** -2.0
+    value = float(weights @ [points.value, index.value] / weights.sum())
+    scale = max(1.0, abs(slope_agreement(points, index)["z"]))
+    return SlopeEstimate(value, scale / math.sqrt(weights.sum()),
+                         f"points and joint power law index combined (scale factor {scale:.2f})")
+
+
+def slope_agreement(points: Slope, index: SlopeEstimate) -> dict:
     """The points' slope and the joint power law's, their difference d = b_index − b_points [1] in units of
     sqrt(s_points² + s_index²) (``z``), and whether they agree at the 95 % level (|z| ≤ 1.96): two reads of one
     slope through the same simulator, whose disagreement is model error that neither interval holds."""

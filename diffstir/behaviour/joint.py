@@ -193,10 +193,17 @@ class JointFit:
         shares = {}
         for name, fit in self.fits.items():
             if has_yield_stress(name):
-                eta, _ = fit.model.viscosity(np.array([shear_rate]), fit.theta)
-                tau_y = fit.model.si_of_theta(fit.theta)[fit.model.names.index("tau_y")]
-                shares[name] = float(tau_y / (eta[0] * shear_rate))
+                model = fit.model.copy()
+                model.set_theta(fit.theta)
+                shares[name] = yield_share(model, shear_rate)
         return shares
+
+
+def yield_share(model: FitModel, shear_rate: float) -> float:
+    """The share of a yield-stress law's stress at ``shear_rate`` [1/s] carried by its yield stress,
+    τ_y / (η(γ̇) γ̇) [1]."""
+    eta, _ = model.viscosity(np.array([shear_rate]))
+    return float(model.params_si()["tau_y"] / (eta[0] * shear_rate))
 
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,

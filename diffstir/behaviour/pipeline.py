@@ -21,18 +21,22 @@ import numpy as np
 
 from ..density import estimate_recording_density
 from ..identify.pipeline import configured_density
-from ..identify.uncertainty import MODEL_FORCE_ERROR
+from ..identify import FitModel
+from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from .apparent import ViscosityPoint, window_viscosity
-from .classify import YIELD_SHARE_SIGMAS, Classification, JointIndex, classify, joint_yield_test, slope_agreement
-from .joint import JointFit, joint_fit
+from ..rheology import has_yield_stress
+from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
+                       slope_agreement)
+from .joint import JointFit, joint_fit, yield_share
 from .windows import PAUSE_SPEED, speed_windows
 
 #: Laws fitted to all speeds at once by default.
 JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
-#: What the slope test reads (``classify``, 1 and 4): the per-speed points, or the joint power law's index.
-SLOPE_TESTS = ("points", "joint_index")
+#: What the slope test reads (``classify``, 1 and 4): the per-speed points, the joint power law's index, or the two
+#: combined (the points alone where the power law was not fitted jointly).
+SLOPE_TESTS = ("combined", "points", "joint_index")
 
 
 @dataclass
@@ -46,7 +50,7 @@ class Behaviour:
     classification: Classification
     joint: JointFit | None
     seconds: float
-    joint_index: JointIndex | None = None
+    joint_index: SlopeEstimate | None = None
 
     def shear_rates(self, points: list[ViscosityPoint]) -> np.ndarray:
         """γ̇_eff = k̄_s U / a [1/s] of ``points`` with the common Metzner-Otto constant k̄_s."""
@@ -70,7 +74,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, pause_speed: float = PAUSE_SPEED,
                  replicates: int = 200, seed: int = 0, model_error: float = MODEL_FORCE_ERROR,
-                 slope_test: str = "points", workers: int = 1) -> Behaviour:
+                 slope_test: str = "combined", workers: int = 1) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
@@ -88,10 +92,11 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
             (``apparent``) and the joint laws' covariances; the default is the fitting grid's
             (``identify.uncertainty``), raise it for a coarser one (``COARSE_FORCE_ERROR`` for
             ``conf/sim/coarse2d.yaml``).
-        slope_test: ``"points"``, the slope of the per-speed points (``classify``, 1), or ``"joint_index"``, the
-            joint power law's n − 1 (``classify``, 4; needs the power law in ``joint_models``). The default is
-            the points: on the 5 mm grid the joint index's interval, σ_m per window included, was 4-8 times
-            narrower than its error on two Newtonian liquids (docs/accuracy.md).
+        slope_test: ``"combined"``, the points' slope and the joint power law's n − 1 combined, their error
+            scaled by their disagreement (``classify``, 4; the points alone without a joint power law);
+            ``"points"``, the slope of the per-speed points (``classify``, 1); ``"joint_index"``, the joint power
+            law's n − 1 alone (needs the power law in ``joint_models``; on the 5 mm grid its interval was 4-8
+            times narrower than its error on two Newtonian liquids, docs/accuracy.md).
         workers: processes that fit the joint laws side by side (``joint.joint_fit``; 1: in this process).
     """
     started = time.perf_counter()
@@ -120,17 +125,51 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
     result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used], replicates=replicates,
                       seed=seed)
-    joint, index = None, None
+    joint, index, test = None, None, None
     if joint_models:
         joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
                           workers=workers, model_error=model_error)
         slope = joint.power_law_slope()
-        index = None if slope is None else JointIndex(*slope)
-        if slope_test == "joint_index":
-            result = result.with_joint_index(index)
+        index = None if slope is None else SlopeEstimate(*slope)
         test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())), YIELD_SHARE_SIGMAS * model_error)
-        result = result.with_joint_yield_test(test)
+    result = decide(result, index, test, slope_test)
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started, index)
+
+
+def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int = 200, seed: int = 0,
+               model_error: float = MODEL_FORCE_ERROR) -> Classification:
+    """The class of a behaviour report (``Behaviour.summary()``, report.json) decided again under ``slope_test``
+    without simulating: from its classified points (γ̇ [1/s], η [Pa·s], the standard error of ln η from noise and
+    simulator together), the joint power law's n and its 95 % interval, and the joint laws' BIC and parameters
+    (their yield stresses' shares of the slowest stress, material above ``YIELD_SHARE_SIGMAS`` × ``model_error``).
+    With the report's own test, ``replicates``, ``seed`` and ``model_error`` it gives the report's class and
+    confidence (to the rounding of the parameters)."""
+    if slope_test not in SLOPE_TESTS:
+        raise ValueError(f"behaviour.slope_test = {slope_test!r}; expected one of {list(SLOPE_TESTS)}")
+    used = [p for p in summary["points"] if p["classified"]]
+    points = classify([p["shear_rate"] for p in used], [p["viscosity"] for p in used],
+                      [math.hypot(p["log_std"], p["model_log_std"]) for p in used], replicates=replicates, seed=seed)
+    joint, index, test = summary.get("joint_fit"), reported_joint_index(summary), None
+    if joint is not None:
+        laws = joint["laws"]
+        slowest = min(p["shear_rate"] for p in used)
+        shares = {name: yield_share(FitModel.named(name, **law["params"]), slowest)
+                  for name, law in laws.items() if has_yield_stress(name)}
+        test = joint_yield_test({name: law["bic"] for name, law in laws.items()}, shares,
+                                YIELD_SHARE_SIGMAS * model_error)
+    if slope_test == "joint_index" and index is None:
+        raise ValueError("behaviour.slope_test = 'joint_index' reads the joint power law's index; the report has none")
+    return decide(points, index, test, slope_test)
+
+
+def reported_joint_index(summary: dict) -> SlopeEstimate | None:
+    """The joint power law's slope n − 1 [1] with the standard error from its 95 % interval, read off a behaviour
+    report (``Behaviour.summary()``); None without a joint power law."""
+    law = (summary.get("joint_fit") or {"laws": {}})["laws"].get("power_law")
+    if law is None:
+        return None
+    lo, hi = law["ci95"]["n"]
+    return SlopeEstimate(law["params"]["n"] - 1.0, (hi - lo) / (2.0 * Z95))
 
 
 def combined_density(recordings: list[Recording], density: float | None) -> dict:
