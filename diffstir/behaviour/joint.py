@@ -23,11 +23,11 @@ also starts from that best liquid fit itself, with a yield stress of ``TRACE_YIE
 (``LIQUID_START_ITERATIONS`` steps): a law that contains the liquid law then ends no worse than it, so that BIC,
 not the optimiser, decides whether the yield stress is worth its parameter (on glycerol the Herschel-Bulkley fit
 from the other two starts ended at 7.4 mN where the power law reached 5.5, docs/accuracy.md). Each law's best
-start then takes ``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs each window's
-residuals by its own scale (``JointProblem``). Uncertainty and selection are those of ``identify`` on the weighted
-residuals: the Laplace covariance with N_eff plus the simulator's force error σ_m as an amplitude error of each
-window, independent between windows (the power law's index with this interval is checked against the points'
-slope, ``classify``), and BIC with the best fit's N_eff.
+start then takes ``POLISH_ITERATIONS`` more steps from a fresh Jacobian. Every fit, screen and comparison weighs
+each window's residuals by its own scale (``JointProblem``). Uncertainty and selection are those of ``identify`` on
+the weighted residuals: the Laplace covariance with N_eff plus the simulator's force error σ_m as an amplitude
+error of each window, independent between windows (the power law's index with this interval is the slope test's
+second read, ``classify``), and BIC with the best fit's N_eff.
 """
 
 from __future__ import annotations
