@@ -52,9 +52,9 @@ fitted (a curved flow curve inflates the straight line's χ² with misfit, not n
    falls keeps the points' yield-stress verdict until the joint yield test (3) decides. The confidence is the
    share of replicates b* ~ N(b, s²) that the rule puts in the same class (Φ the standard normal CDF, z' = b/s):
    Φ(1.96 − z') − Φ(−1.96 − z') newtonian, 1 − Φ(1.96 − z') rising, Φ(−1.96 − z') falling. On the 5 mm grid the
-   points leaned thinning by 0.09-0.14 on four liquids and the joint index thickening by 0.02-0.06, about 0.15
-   apart each time (z = 2-7), the truth between them; the index's own interval, ±0.015-0.02 with σ_m per window,
-   did not hold its error, the points' interval not theirs (docs/accuracy.md).
+   points read five liquids' slopes 0.09-0.16 low and the joint index erred by −0.01 to +0.06, about 0.15 above
+   the points each time (z = 2-7), the truth between them on four; the index's own interval, ±0.015-0.02 with
+   σ_m per window, did not hold its error, nor the points' interval theirs (docs/accuracy.md).
 """
 
 from __future__ import annotations
