@@ -193,17 +193,17 @@ class JointFit:
         shares = {}
         for name, fit in self.fits.items():
             if has_yield_stress(name):
-                model = fit.model.copy()
-                model.set_theta(fit.theta)
-                shares[name] = yield_share(model, shear_rate)
+                shares[name] = yield_share(fit.model, shear_rate, fit.theta)
         return shares
 
 
-def yield_share(model: FitModel, shear_rate: float) -> float:
+def yield_share(model: FitModel, shear_rate: float, theta: np.ndarray | None = None) -> float:
     """The share of a yield-stress law's stress at ``shear_rate`` [1/s] carried by its yield stress,
-    τ_y / (η(γ̇) γ̇) [1]."""
-    eta, _ = model.viscosity(np.array([shear_rate]))
-    return float(model.params_si()["tau_y"] / (eta[0] * shear_rate))
+    τ_y / (η(γ̇) γ̇) [1], at θ (default: the model's current parameters)."""
+    theta = model.theta() if theta is None else theta
+    eta, _ = model.viscosity(np.array([shear_rate]), theta)
+    tau_y = model.si_of_theta(theta)[model.names.index("tau_y")]
+    return float(tau_y / (eta[0] * shear_rate))
 
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,

@@ -20,13 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..density import estimate_recording_density
-from ..identify.pipeline import configured_density
 from ..identify import FitModel
+from ..identify.pipeline import configured_density
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
-from .apparent import ViscosityPoint, window_viscosity
 from ..rheology import has_yield_stress
+from .apparent import ViscosityPoint, window_viscosity
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
 from .joint import JointFit, joint_fit, yield_share
@@ -50,7 +50,6 @@ class Behaviour:
     classification: Classification
     joint: JointFit | None
     seconds: float
-    joint_index: SlopeEstimate | None = None
 
     def shear_rates(self, points: list[ViscosityPoint]) -> np.ndarray:
         """γ̇_eff = k̄_s U / a [1/s] of ``points`` with the common Metzner-Otto constant k̄_s."""
@@ -60,8 +59,9 @@ class Behaviour:
         points = [{**p.summary(), "shear_rate": float(g), "classified": any(p is q for q in self.used)}
                   for p, g in zip(self.points, self.shear_rates(self.points))]
         behaviour = self.classification.summary()
-        if self.joint_index is not None:
-            behaviour["slope_check"] = slope_agreement(self.classification.slope, self.joint_index)
+        index = None if self.joint is None else self.joint.power_law_slope()
+        if index is not None:
+            behaviour["slope_check"] = slope_agreement(self.classification.slope, SlopeEstimate(*index))
         return {"behaviour": behaviour, "density": self.density,
                 "metzner_otto": {"value": self.metzner_otto, "unit": "1",
                                  "meaning": "effective shear rate = value * rod speed / rod radius, the geometric "
@@ -102,8 +102,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     started = time.perf_counter()
     if not recordings:
         raise ValueError("behaviour: no recordings; give recordings=[a,b,...] of one fluid")
-    if slope_test not in SLOPE_TESTS:
-        raise ValueError(f"behaviour.slope_test = {slope_test!r}; expected one of {list(SLOPE_TESTS)}")
+    _check_slope_test(slope_test)
     if slope_test == "joint_index" and "power_law" not in joint_models:
         raise ValueError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law to "
                          f"behaviour.joint_models (got {list(joint_models)})")
@@ -133,7 +132,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         index = None if slope is None else SlopeEstimate(*slope)
         test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())), YIELD_SHARE_SIGMAS * model_error)
     result = decide(result, index, test, slope_test)
-    return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started, index)
+    return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
 
 
 def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int = 200, seed: int = 0,
@@ -144,8 +143,7 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
     (their yield stresses' shares of the slowest stress, material above ``YIELD_SHARE_SIGMAS`` × ``model_error``).
     With the report's own test, ``replicates``, ``seed`` and ``model_error`` it gives the report's class and
     confidence (to the rounding of the parameters)."""
-    if slope_test not in SLOPE_TESTS:
-        raise ValueError(f"behaviour.slope_test = {slope_test!r}; expected one of {list(SLOPE_TESTS)}")
+    _check_slope_test(slope_test)
     used = [p for p in summary["points"] if p["classified"]]
     points = classify([p["shear_rate"] for p in used], [p["viscosity"] for p in used],
                       [math.hypot(p["log_std"], p["model_log_std"]) for p in used], replicates=replicates, seed=seed)
@@ -160,6 +158,11 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
     if slope_test == "joint_index" and index is None:
         raise ValueError("behaviour.slope_test = 'joint_index' reads the joint power law's index; the report has none")
     return decide(points, index, test, slope_test)
+
+
+def _check_slope_test(slope_test: str) -> None:
+    if slope_test not in SLOPE_TESTS:
+        raise ValueError(f"behaviour.slope_test = {slope_test!r}; expected one of {list(SLOPE_TESTS)}")
 
 
 def reported_joint_index(summary: dict) -> SlopeEstimate | None:
