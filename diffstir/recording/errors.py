@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from ..errors import DiffstirError
 
-class RecordingError(ValueError):
+
+class RecordingError(DiffstirError, ValueError):
     """A recording (or a measurement in one) breaks the format or is physically impossible.
 
     The message names the file, the field or column, the offending value (with row and time for columns)
