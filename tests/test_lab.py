@@ -131,6 +131,45 @@ def test_sensor_gain_offset_drift_and_sampling():
         SensorModel(stated_time_constant=-0.02)
 
 
+def test_rig_effects_jitter_rounding_dead_start_and_clock():
+    rig = SensorModel(sample_rate=1000.0, resolution=0.0, dead_start=0.25, position_jitter=3e-5,
+                      position_resolution=1e-6, time_origin=1e5)
+    true_xy = np.stack([np.linspace(0.0, 0.01, 4000), np.full(4000, 0.012345678)], -1)
+    xy = rig.positions(true_xy, np.random.default_rng(0))
+    # 1 um steps; the jitter's sample std within 3 of its standard errors (sigma / sqrt(2 N), 1.1 % for N = 4000)
+    np.testing.assert_allclose(xy / 1e-6, np.round(xy / 1e-6), atol=1e-6)
+    error = xy - true_xy
+    assert np.std(error) == pytest.approx(3e-5, rel=3 * 0.011 / math.sqrt(2)) and abs(np.mean(error)) < 3e-6
+    np.testing.assert_array_equal(SensorModel(position_resolution=1e-6).positions(true_xy, None)[:, 1], 12.346e-3)
+    times = np.arange(1001) * 1e-3
+    force = np.stack([np.full_like(times, 0.2), np.zeros_like(times)], -1)
+    sample = rig.sample_times(0.0, 1.0)
+    reading = rig.read(times, force, np.tile([-1.0, 0.0], (times.size, 1)), sample, np.random.default_rng(0))
+    assert np.all(reading[sample < 0.25] == 0) and np.allclose(reading[sample >= 0.25], 0.2)
+    assert rig.spec().time_constant is None and "time_origin" in rig.as_dict()
+    for field in ("dead_start", "position_jitter", "position_resolution", "time_origin"):
+        with pytest.raises(ValueError, match=f"sensor.{field} = -1.0; expected a number >= 0 in (s|m)"):
+            SensorModel(**{field: -1.0})
+
+
+def test_a_rig_sensor_writes_jittered_rounded_positions_on_the_rig_clock(tmp_path):
+    trajectory = stirring_programme([{"speed": 0.04, "duration": 0.6}], radius=0.003, ramp_time=0.05)
+    sensor = SensorModel(mode="tangential", sample_rate=1000.0, resolution=0.001, one_sided=True, dead_start=0.1,
+                         position_jitter=2e-5, position_resolution=1e-6, time_origin=1e5)
+    lab = synthesise(FLUID, trajectory, rig=SMALL_RIG, sim_config=COARSE, sensor=sensor, seed=7, name="rig")
+    write_lab_recording(lab, tmp_path / "rig")
+    rows = (tmp_path / "rig" / "stir.csv").read_text().splitlines()
+    assert float(rows[2].split(",")[0]) == 1e5  # the rig's clock, as written
+    rec, t = lab.recording, lab.recording.t - 1e5
+    assert t[0] == 0 and np.diff(t) == pytest.approx(1e-3, abs=1e-9)
+    true_xy = trajectory.poses(t)[0]
+    # 600 samples: the std of the error within 20 % (5 of its standard errors, 2.9 %, plus the 1 um rounding)
+    assert np.std(rec.x - true_xy[:, 0]) == pytest.approx(2e-5, rel=0.2)
+    np.testing.assert_allclose(rec.y / 1e-6, np.round(rec.y / 1e-6), atol=1e-6)
+    assert np.all(rec.force[t < 0.1] == 0) and rec.force[t > 0.2].mean() > 0.005
+    assert json.loads(truth_path(tmp_path / "rig").read_text())["sensor"]["dead_start"] == 0.1
+
+
 def test_programme_speeds_pauses_and_reversal():
     segments = [{"speed": 0.05, "duration": 1.0}, {"speed": 0.0, "duration": 0.5}, {"speed": -0.03, "duration": 1.0}]
     trajectory = stirring_programme(segments, radius=0.01, ramp_time=0.2)

@@ -13,6 +13,11 @@ The true horizontal force F(t) [N] on the rod, on the simulation's uniform time 
 7. white noise:       y_k + N(0, σ²)                                   σ [N]
 8. quantisation:      q round(y / q)                                   q = resolution [N]
 9. one-sided reading: max(0, y) (a compression-only sensor)
+10. dead start:       y_k = 0 for t_k − t_0 < t_dead (a sensor that wakes late reads zero until then)  t_dead [s]
+
+The rod's recorded position goes through the arm's encoder or tracker: p_k = q_p round((p(t_k) + N(0, σ_p²)) / q_p)
+per axis, σ_p [m] the position jitter and q_p [m] the resolution it is written to; the recorded time is the rig's
+clock, t_k + t_origin, t_origin [s] the clock's value at the programme's start (a rig's uptime, a Unix time).
 
 Each step is a plain numpy function, so each can be checked against its definition.
 """
@@ -81,6 +86,10 @@ class SensorModel:
         density_hold: [s], how long each static density reading is averaged (its noise is σ / sqrt(f_s hold)).
         stated_time_constant: [s], the response time the recording's sensor block states (what a calibration of
             this sensor found; None: not stated). It can differ from ``lag_time``, which is what the sensor does.
+        dead_start: t_dead [s], how long after the first sample the sensor reads 0 before it wakes.
+        position_jitter: σ_p [m], white noise per sample and axis on the recorded rod position (encoder, tracker).
+        position_resolution: q_p [m], the step the recorded positions are rounded to (0: none).
+        time_origin: t_origin [s], the rig clock's value at the programme's start, added to the recorded times.
     """
 
     mode: str = "tangential"
@@ -97,6 +106,10 @@ class SensorModel:
     offset: float = 0.0
     density_hold: float = 2.0
     stated_time_constant: float | None = None
+    dead_start: float = 0.0
+    position_jitter: float = 0.0
+    position_resolution: float = 0.0
+    time_origin: float = 0.0
 
     def __post_init__(self) -> None:
         if self.mode not in SENSOR_MODES:
@@ -110,7 +123,8 @@ class SensorModel:
         if not (math.isfinite(self.sample_rate) and self.sample_rate > 0):
             raise ValueError(f"sensor.sample_rate = {self.sample_rate!r}; expected a positive rate in Hz")
         for name, unit in (("resolution", "N"), ("noise_std", "N"), ("lag_time", "s"), ("dead_band", "N"),
-                           ("drift_walk", "N/s^0.5"), ("density_hold", "s")):
+                           ("drift_walk", "N/s^0.5"), ("density_hold", "s"), ("dead_start", "s"),
+                           ("position_jitter", "m"), ("position_resolution", "m"), ("time_origin", "s")):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"sensor.{name} = {value!r}; expected a number >= 0 in {unit}")
@@ -157,7 +171,16 @@ class SensorModel:
         y = np.interp(sample_times, times, x)
         y = y + rng.normal(0.0, self.noise_std, y.size) if self.noise_std > 0 else y
         y = quantise(y, self.resolution)
-        return one_sided(y) if self.one_sided else y
+        y = one_sided(y) if self.one_sided else y
+        return np.where(sample_times - sample_times[0] < self.dead_start, 0.0, y)
+
+    def positions(self, xy: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The recorded rod positions [m] (K, 2) of the true ones ``xy`` [m] (K, 2): jitter σ_p, then rounding to
+        q_p."""
+        xy = np.asarray(xy, dtype=np.float64)
+        if self.position_jitter > 0:
+            xy = xy + rng.normal(0.0, self.position_jitter, xy.shape)
+        return quantise(xy, self.position_resolution)
 
     def static_reading(self, force: float, rng: np.random.Generator) -> float:
         """A held, averaged reading [N] of a constant axial ``force`` [N]: gain, offset, the noise averaged over

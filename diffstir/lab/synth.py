@@ -166,12 +166,12 @@ def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *,
     # first mid-step force, read that force); a recording that began in motion would replay from rest
     t = sensor.sample_times(float(truth_sim.trajectory.t[0]), float(times[-1]))
     reading = sensor.read(times, truth_sim.force, velocity, t, rng)
-    xy = truth_sim.trajectory.poses(t)[0]
     density, density_truth = density_block(fluid.density, rig, sensor, rng)
+    xy = sensor.positions(truth_sim.trajectory.poses(t)[0], rng)  # drawn after the density readings
     rec = Recording(cup=CupGeometry(radius=rig.cup.radius, fill_height=rig.cup.fill_height),
                     rod=RodGeometry(radius=rig.rod.radius, immersion_depth=rig.rod.immersion_depth),
-                    sensor=sensor.spec(), density=density, t=t, x=xy[:, 0], y=xy[:, 1], force=reading,
-                    name=name, fluid=label, temperature=fluid.temperature)
+                    sensor=sensor.spec(), density=density, t=t + sensor.time_origin, x=xy[:, 0], y=xy[:, 1],
+                    force=reading, name=name, fluid=label, temperature=fluid.temperature)
     validate_recording(rec)
     truth = {
         "format": TRUTH_FORMAT,
