@@ -25,6 +25,8 @@ from .state import State
 from .step import Scene, step
 
 SHEAR_RATE_SCALE = 4.0  # the largest shear rate resolvable on the grid is about this times (max speed / dx)
+STEP_TOLERANCE = 1e-6  # relative: a duration within this of a whole number of steps takes that number (the
+#                        rounding of times on a rig's clock, 1.5e-11 s at 1e5 s, does not add a step)
 
 
 @dataclass
@@ -32,7 +34,8 @@ class SimResult:
     """The output of a rollout.
 
     Attributes:
-        times: mid-step times [s], (T,).
+        times: mid-step times [s], (T,), float64 whatever the config's dtype: a float32 time resolves only
+            1 ms at 1e4 s, so that the steps of a rollout on a rig's clock would not increase.
         force: the fluid's force on the rod over each step [N], (T, d); in 2-D per unit length of rod [N/m].
         torque: the fluid's torque on the rod about its own axis [N·m], (T,); in 2-D per unit length [N].
         dt: the time step [s].
@@ -124,7 +127,7 @@ class StirringSimulator(nn.Module):
             signal = u_max if cfg.pressure == "projection" else self.sound_speed(trajectory) + u_max
             dt = min(cfg.cfl * cfg.dx / max(signal, 1e-12),
                      cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12)), cfg.dt_max)
-        steps = max(1, math.ceil(trajectory.duration / dt - 1e-9))
+        steps = max(1, math.ceil(trajectory.duration / dt * (1.0 - STEP_TOLERANCE)))
         return trajectory.duration / steps
 
     def initial_state(self, trajectory: Trajectory) -> State:
@@ -171,7 +174,7 @@ class StirringSimulator(nn.Module):
             if snapshot_every and (stop // snapshot_every > start // snapshot_every or start == 0):
                 snapshots.append(state.x.detach().clone())
                 snapshot_times.append(float(times[stop]))
-        mid = torch.as_tensor(times[:-1] + 0.5 * dt, dtype=self.config.torch_dtype, device=state.x.device)
+        mid = torch.as_tensor(times[:-1] + 0.5 * dt, dtype=torch.float64, device=state.x.device)
         return SimResult(times=mid, force=torch.cat(forces), torque=torch.cat(torques), dt=dt, state=state,
                          snapshots=snapshots, snapshot_times=snapshot_times, per_unit_length=self.config.dim == 2)
 

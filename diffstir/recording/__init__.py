@@ -1,5 +1,6 @@
 """Stirring recordings: the diffstir-recording/1 format (recording.yaml + stir.csv), its validation, a
-crash-safe streaming writer, the force sensor's modes and resampling between recording and simulation times.
+crash-safe streaming writer, the physical plausibility of a recording's force and motion, the force sensor's modes
+and resampling between recording and simulation times.
 
 See docs/recording-format.md. All quantities are SI (m, s, N, kg/m³). Importing this package does not import
 torch (a recorder on a robot computer does not need it); the sensor and resampling functions load it on first use.
@@ -7,11 +8,12 @@ torch (a recorder on a robot computer does not need it); the sensor and resampli
 
 import importlib
 
-from diffstir.recording.errors import RecordingError, RecordingWarning
+from diffstir.recording.errors import RecordingError, RecordingNotFound, RecordingWarning
 from diffstir.recording.files import load_recording, save_recording
 from diffstir.recording.format import (
     FORMAT, CupGeometry, DensityMeasurement, Recording, RodGeometry, SensorSpec,
 )
+from diffstir.recording.plausibility import check_plausibility
 from diffstir.recording.stirring import stirring_frequency
 from diffstir.recording.validate import validate_recording
 from diffstir.recording.writer import RecordingWriter
@@ -38,10 +40,12 @@ __all__ = [
     "DensityMeasurement",
     "Recording",
     "RecordingError",
+    "RecordingNotFound",
     "RecordingWarning",
     "RecordingWriter",
     "RodGeometry",
     "SensorSpec",
+    "check_plausibility",
     "first_order_response",
     "load_recording",
     "resample_force",

@@ -13,5 +13,9 @@ class RecordingError(DiffstirError, ValueError):
     """
 
 
+class RecordingNotFound(RecordingError, FileNotFoundError):
+    """A recording path that does not exist or is not a directory."""
+
+
 class RecordingWarning(UserWarning):
     """A recording is readable but something in it deserves attention (unknown fields, partial data, ...)."""

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import codecs
 import csv
+import decimal
+import difflib
 import io
 import math
 import os
+import re
 import secrets
 import shutil
 import sys
@@ -15,11 +19,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from diffstir.recording.errors import RecordingError, RecordingWarning
+from diffstir.recording.errors import RecordingError, RecordingNotFound, RecordingWarning
 from diffstir.recording.format import (
     COLUMN_UNITS, CSV_NAME, FORMAT, OPTIONAL_COLUMNS, REQUIRED_COLUMNS, YAML_NAME, CupGeometry,
     DensityMeasurement, Recording, RodGeometry, SensorSpec,
 )
+from diffstir.recording.plausibility import check_plausibility
 from diffstir.recording.validate import check_columns_shape, validate_recording
 
 # Fields this version interprets, by their path in recording.yaml; anything else is kept in extra_meta.
@@ -266,6 +271,49 @@ def csv_header(names: list[str]) -> str:
     return f"# {FORMAT} stir.csv; units: {units}\n{','.join(names)}\n"
 
 
+def read_text(path: Path) -> str:
+    """The text of ``path`` as UTF-8, without a byte-order mark (Excel's "CSV UTF-8" writes one), with CRLF and
+    CR line ends read as LF. Raises FileNotFoundError, and RecordingError naming the file for any other encoding."""
+    data = path.read_bytes()
+    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) or b"\x00" in data[:4096]:
+        raise RecordingError(f"{path}: UTF-16 or binary text (NUL bytes); expected UTF-8 text (in Excel: "
+                             f"save as 'CSV UTF-8')")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise RecordingError(f"{path} line {line}: byte 0x{data[exc.start]:02x} is not UTF-8 (Latin-1 or another "
+                             f"code page?); expected UTF-8 text (save the file as UTF-8)") from None
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def relative_times(values: list[str], lines: list[int], where: str) -> tuple[np.ndarray, float]:
+    """Times [s] counted from the first, t_i - t_0 in float64, and the origin t_0 [s], from their text.
+
+    The difference is taken in decimal arithmetic on the text, so a clock that reads 1.7e9 s keeps the
+    resolution its text carries (float64 holds 1.7e9 only to 2.4e-7 s). Non-finite text gives nan or inf at
+    its row (``validate_recording`` names it)."""
+    times = _to_float(values, "t", lines, where)
+    if not times.size or not np.isfinite(times[0]):
+        return times, 0.0
+    with decimal.localcontext(decimal.Context(prec=60)):
+        first = decimal.Decimal(values[0])
+        relative = np.array([float(decimal.Decimal(v) - first) if math.isfinite(t) else t
+                             for v, t in zip(values, times)], dtype=np.float64)
+    return relative, float(times[0])
+
+
+def absolute_times(t: np.ndarray, origin: float) -> list[str] | np.ndarray:
+    """The text of origin + t [s], summed in decimal arithmetic on each value's shortest text: the inverse of
+    ``relative_times`` (``t`` unchanged when ``origin`` is 0)."""
+    if origin == 0.0:
+        return t
+    with decimal.localcontext(decimal.Context(prec=60)):
+        base = decimal.Decimal(repr(float(origin)))
+        return [format_value(str(base + decimal.Decimal(repr(float(v))))) if math.isfinite(v) else repr(float(v))
+                for v in t]
+
+
 def _to_float(values: list[str], column: str, lines: list[int], where: str) -> np.ndarray:
     try:
         return np.array([float(v) for v in values], dtype=np.float64)
@@ -280,35 +328,43 @@ def _to_float(values: list[str], column: str, lines: list[int], where: str) -> n
         raise
 
 
-def read_csv(path: Path, *, partial: bool) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Known and unknown columns of stir.csv, each in file order.
+def read_csv(path: Path, *, partial: bool) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], float]:
+    """Known and unknown columns of stir.csv, each in file order, and the time origin [s]: column ``t`` counts
+    from its first value (``relative_times``), which is returned as the origin.
 
+    The text is UTF-8, with or without a byte-order mark, with LF, CRLF or CR line ends (``read_text``).
     Lines whose first non-blank character is '#' are comments; blank lines are skipped. The last line is
     dropped, with a warning, when it has no final newline and either the recording is partial or the line
     does not parse (a write cut short by a crash).
     """
     where = str(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path)
     except FileNotFoundError:
         raise RecordingError(f"{where}: missing; a recording directory needs {YAML_NAME} and {CSV_NAME}") from None
-    except UnicodeDecodeError as exc:
-        raise RecordingError(f"{where}: not UTF-8 text ({exc})") from None
     lines = [(n + 1, line) for n, line in enumerate(text.split("\n"))
              if line.strip() and not line.lstrip().startswith("#")]
     if not lines:
         raise RecordingError(f"{where}: no header line; expected the columns {', '.join(REQUIRED_COLUMNS)}")
     unterminated = not text.endswith("\n")
     (header_line, header_text), data = lines[0], lines[1:]
-    header = [h.strip() for h in next(csv.reader([header_text]))]
+    header = [_column_name(h.strip(), where, header_line) for h in next(csv.reader([header_text]))]
     for column in header:
         if not column or header.count(column) > 1:
             raise RecordingError(f"{where} line {header_line}: column name {column!r} is empty or repeated in "
                                  f"the header {header_text!r}")
+    for separator, name in ((";", "semicolons"), ("\t", "tabs")):
+        if len(header) == 1 and separator in header_text:
+            raise RecordingError(f"{where} line {header_line}: the header {header_text!r} is separated by {name}; "
+                                 f"expected commas: t,x,y,force (s, m, m, N) with '.' as the decimal point")
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
+        unknown_names = {h.lower(): h for h in header if h not in REQUIRED_COLUMNS and h not in OPTIONAL_COLUMNS}
+        hints = [f"{unknown_names[close[0]]!r} for {c!r}?" for c in missing
+                 for close in [difflib.get_close_matches(c, list(unknown_names), n=1, cutoff=0.5)] if close]
+        hint = f" (misspelt: {', '.join(hints)})" if hints else ""
         raise RecordingError(f"{where}: required column(s) {', '.join(repr(c) for c in missing)} missing from the "
-                             f"header {header_text!r}; expected t [s], x [m], y [m], force [N] in any order")
+                             f"header {header_text!r}{hint}; expected t [s], x [m], y [m], force [N] in any order")
 
     rows = [[v.strip() for v in row] for row in csv.reader([line for _, line in data])]
     numbers = [line for line, _ in data]
@@ -318,13 +374,17 @@ def read_csv(path: Path, *, partial: bool) -> tuple[dict[str, np.ndarray], dict[
         rows, numbers = rows[:-1], numbers[:-1]
     for row, line in zip(rows, numbers):
         if len(row) != len(header):
+            comma = " (a decimal comma? expected '.' as the decimal point)" if len(row) > len(header) else ""
             raise RecordingError(f"{where} line {line}: {len(row)} values for the {len(header)} columns "
-                                 f"{', '.join(header)}")
+                                 f"{', '.join(header)}{comma}; expected numbers in "
+                                 f"{', '.join(f'{h} [{COLUMN_UNITS[h]}]' for h in header if h in COLUMN_UNITS)}")
 
     values = list(zip(*rows)) if rows else [()] * len(header)
-    known, unknown = {}, {}
+    known, unknown, origin = {}, {}, 0.0
     for column, column_values in zip(header, values):
-        if column in REQUIRED_COLUMNS or column in OPTIONAL_COLUMNS:
+        if column == "t":
+            known[column], origin = relative_times(list(column_values), numbers, where)
+        elif column in REQUIRED_COLUMNS or column in OPTIONAL_COLUMNS:
             known[column] = _to_float(list(column_values), column, numbers, where)
         else:
             try:
@@ -333,7 +393,23 @@ def read_csv(path: Path, *, partial: bool) -> tuple[dict[str, np.ndarray], dict[
                 unknown[column] = np.array(column_values, dtype=str)
     if unknown:
         warn(f"{where}: unknown columns kept in extra_columns but not interpreted: {', '.join(unknown)}")
-    return known, unknown
+    return known, unknown, origin
+
+
+_NAME_WITH_UNIT = re.compile(r"^(\w+)\s*[\[(]\s*([^\])]*?)\s*[\])]$")
+
+
+def _column_name(text: str, where: str, line: int) -> str:
+    """A header cell's column name: 'force [N]' or 'force (N)' is 'force' when the unit is the column's SI unit;
+    another unit for a known column is refused."""
+    match = _NAME_WITH_UNIT.match(text)
+    if match is None or match[1] not in COLUMN_UNITS:
+        return text
+    name, unit = match[1], match[2]
+    if unit != COLUMN_UNITS[name]:
+        raise RecordingError(f"{where} line {line}: column {text!r} is in {unit!r}; expected {name} in "
+                             f"{COLUMN_UNITS[name]} (convert the values, or name the column {name})")
+    return name
 
 
 def _parses(row: list[str], header: list[str]) -> bool:
@@ -355,34 +431,37 @@ def _recording_dir(path: str | Path) -> Path:
     if path.name in (YAML_NAME, CSV_NAME) and path.is_file():
         path = path.parent
     if not path.is_dir():
-        raise FileNotFoundError(f"{path}: no such recording directory")
+        raise RecordingNotFound(f"{path}: no such recording directory; expected a directory with {YAML_NAME} and "
+                                f"{CSV_NAME}")
     return path
 
 
 def load_recording(path: str | Path, *, validate: bool = True) -> Recording:
     """Read the recording directory ``path`` (or its recording.yaml / stir.csv).
 
-    Raises RecordingError if the files break the format and, with ``validate``, if validate_recording finds
-    an error; its warnings, unknown fields/columns and partial recordings are reported as RecordingWarning.
+    Column ``t`` counts from the first sample (t[0] = 0); the clock's reading there is ``Recording.time_origin``.
+    Raises RecordingError if the files break the format and, with ``validate``, if validate_recording or
+    check_plausibility (the force and motion the rig can make) finds an error, before any simulation; their
+    warnings, unknown fields/columns and partial recordings are reported as RecordingWarning.
     """
     directory = _recording_dir(path)
     yaml_path = directory / YAML_NAME
     try:
-        text = yaml_path.read_text(encoding="utf-8")
+        text = read_text(yaml_path)
     except FileNotFoundError:
         raise RecordingError(f"{yaml_path}: missing; {directory} is not a diffstir recording") from None
     try:
         meta = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise RecordingError(f"{yaml_path}: not valid YAML: {exc}") from None
+        raise RecordingError(f"{yaml_path}: not valid YAML: {' '.join(str(exc).split())}") from None
     fields = parse_metadata(meta, str(yaml_path))
-    known, unknown = read_csv(directory / CSV_NAME, partial=not fields["complete"])
-    rec = Recording(**fields, **known, extra_columns=unknown, path=directory)
+    known, unknown, origin = read_csv(directory / CSV_NAME, partial=not fields["complete"])
+    rec = Recording(**fields, **known, extra_columns=unknown, time_origin=origin, path=directory)
     if not rec.complete:
         warn(f"{yaml_path}: PARTIAL recording (complete: false, reason: {rec.partial_reason!r}); it holds "
              f"{rec.t.size} rows up to t = {rec.t[-1] if rec.t.size else math.nan} s and may end early")
     if validate:
-        for message in validate_recording(rec):
+        for message in validate_recording(rec) + check_plausibility(rec):
             warn(message)
     return rec
 
@@ -418,7 +497,7 @@ def save_recording(rec: Recording, path: str | Path, *, overwrite: bool = False)
     tmp = fresh_dir(path.parent, path.name, ".tmp")
     try:
         with open(tmp / CSV_NAME, "w", encoding="utf-8", newline="") as f:
-            write_csv(f, rec.columns())
+            write_csv(f, {**rec.columns(), "t": absolute_times(rec.t, rec.time_origin)})
             f.flush()
             os.fsync(f.fileno())
         write_metadata(tmp, meta)

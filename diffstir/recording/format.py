@@ -100,6 +100,8 @@ class Recording:
 
     Columns are float64 1-D arrays of one length: ``t`` [s], ``x``, ``y`` [m] (rod axis, cup frame), ``force`` [N]
     (as ``sensor`` defines it), and optionally ``z`` [m], ``force_x``, ``force_y`` [N], ``raw`` [counts].
+    ``time_origin`` [s] is the rig clock's reading at the first sample: ``load_recording`` counts ``t`` from it
+    (t[0] = 0), so that times keep their resolution whatever the clock read.
     ``complete`` is False for a recording cut short (crash, Ctrl-C), with ``partial_reason``. Fields and
     columns this version does not know are kept in ``extra_meta`` (nested like the yaml) and ``extra_columns``.
     """
@@ -119,6 +121,7 @@ class Recording:
     name: str | None = None
     fluid: str | None = None
     temperature: float | None = None
+    time_origin: float = 0.0
     complete: bool = True
     partial_reason: str | None = None
     extra_meta: dict = field(default_factory=dict)

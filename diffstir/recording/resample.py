@@ -4,7 +4,7 @@ recording times.
 Both interpolate linearly. Linear positions never overshoot (the rod stays on chords of the recorded path, so it
 cannot reach the wall if the recording does not), and velocities are Recording.velocity() interpolated, so at
 the recorded times they are exactly the recording's velocities. Neither extrapolates: times outside the other
-series' span, beyond TIME_TOLERANCE, raise RecordingError.
+series' span, beyond TIME_TOLERANCE plus four float64 spacings at the times' magnitude, raise RecordingError.
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ def _times(values) -> np.ndarray:
 
 
 def _check_span(times: np.ndarray, start: float, end: float, what: str) -> None:
-    outside = (times < start - TIME_TOLERANCE) | (times > end + TIME_TOLERANCE)
+    tolerance = TIME_TOLERANCE + 4 * float(np.spacing(max(abs(start), abs(end))))  # s: the times' own rounding
+    outside = (times < start - tolerance) | (times > end + tolerance)
     if np.any(outside):
         i = int(np.flatnonzero(outside)[0])
         raise RecordingError(f"{what}: time {float(times[i])!r} s (index {i}) lies outside [{float(start)!r}, "

@@ -23,16 +23,20 @@ AXIS_TOLERANCE = 1e-3  # |‖axis‖ - 1| allowed for a component sensor's axis
 FILL_TOLERANCE = 0.02  # relative disagreement of fill_height and fill_volume that is warned about
 MIN_SAMPLES_PER_PERIOD = 10  # samples per stirring period, at the median sample spacing
 MIN_DURATION = 0.5  # s; a recording must also span one stirring period
+MAX_TIME_CONSTANT = 1.0  # s: a stated sensor response time beyond this looks like milliseconds
+SAMPLE_RATE_UNIT_RATIO = 100.0  # a declared sample rate this many times off the times' looks like ms or kHz
 MAX_GAP_PERIODS = 0.25  # a single gap between samples longer than this many stirring periods is warned about
 PLAUSIBLE_DENSITY = (400.0, 3000.0)  # kg/m³: Archimedes densities outside this range are warned about
 PLAUSIBLE_TEMPERATURE = (-30.0, 120.0)  # °C
+TIME_RESOLUTION = 0.01  # of the median sample spacing: the float64 spacing of the clock's readings must be finer
 
 
 def _raise(errors: list[str]) -> None:
+    """Raise one RecordingError on one line for all of ``errors``, if any."""
     if len(errors) == 1:
         raise RecordingError(errors[0])
     if errors:
-        raise RecordingError(f"{len(errors)} problems:\n" + "\n".join(f"  - {e}" for e in errors))
+        raise RecordingError(f"{len(errors)} problems: " + " ".join(f"({k}) {e};" for k, e in enumerate(errors, 1)))
 
 
 def _length(errors: list[str], where: str, field: str, value: float | None) -> bool:
@@ -43,7 +47,8 @@ def _length(errors: list[str], where: str, field: str, value: float | None) -> b
         errors.append(f"{where}: field '{field}' = {value!r}; expected a positive length in m")
         return False
     if value > MAX_LENGTH:
-        errors.append(f"{where}: field '{field}' = {value!r} m looks like millimetres; expected metres (m)")
+        errors.append(f"{where}: field '{field}' = {value!r} m looks like millimetres or centimetres; expected "
+                      f"metres (m)")
         return False
     return True
 
@@ -107,6 +112,9 @@ def check_metadata(cup: CupGeometry, rod: RodGeometry, sensor: SensorSpec, densi
     tau = sensor.time_constant
     if tau is not None and not (math.isfinite(tau) and tau >= 0):
         errors.append(f"{where}: field 'sensor.time_constant' = {tau!r}; expected a response time >= 0 in s")
+    elif tau is not None and tau > MAX_TIME_CONSTANT:
+        errors.append(f"{where}: field 'sensor.time_constant' = {tau!r} s looks like milliseconds; expected a "
+                      f"response time in s (at most {MAX_TIME_CONSTANT:g} s)")
 
     if density is not None:
         for field, value in (("rod_weight", density.rod_weight), ("immersed_reading", density.immersed_reading)):
@@ -167,8 +175,16 @@ def _check_values(rec: Recording) -> list[str]:
     steps = np.diff(rec.t)
     if np.any(steps <= 0):
         i = int(np.flatnonzero(steps <= 0)[0]) + 1
-        errors.append(f"{where}: column 't' = {float(rec.t[i])!r} s at data row {i + 1} does not increase on "
-                      f"{float(rec.t[i - 1])!r} s at data row {i}; expected strictly increasing times in s")
+        errors.append(f"{where}: column 't' = {float(rec.t[i] + rec.time_origin)!r} s at data row {i + 1} does not "
+                      f"increase on {float(rec.t[i - 1] + rec.time_origin)!r} s at data row {i}; expected strictly "
+                      f"increasing times in s")
+    elif steps.size:
+        clock = abs(rec.time_origin) + float(np.max(np.abs(rec.t)))
+        spacing, interval = float(np.spacing(clock)), float(np.median(steps))
+        if spacing > TIME_RESOLUTION * interval:
+            errors.append(f"{where}: column 't' reads up to {clock:.6g} s, where float64 (the rig's clock) resolves "
+                          f"only {spacing:.3g} s, more than {TIME_RESOLUTION:.0%} of the {interval:.3g} s sample "
+                          f"spacing; expected times in s from a recent origin (e.g. the recording's start)")
 
     in_metres = True
     for column in ("x", "y", "z"):
@@ -214,8 +230,10 @@ def _check_stir(rec: Recording) -> tuple[list[str], list[str]]:
     rate = rec.sample_rate_estimate
     f = stirring_frequency(rec.t, rec.x, rec.y)
     if f == 0.0:
-        warnings.append(f"{where}: columns 'x', 'y': the rod does not stir (its axis stays within "
-                        f"{MIN_STIR_AMPLITUDE * 1e3:g} mm of its mean position); nothing to fit a viscosity to")
+        excursion = float(np.max(np.hypot(rec.x - np.mean(rec.x), rec.y - np.mean(rec.y))))
+        errors.append(f"{where}: columns 'x', 'y': the rod does not stir (its axis stays within {excursion:.3g} m "
+                      f"of its mean position); expected a stir of at least {MIN_STIR_AMPLITUDE * 1e3:g} mm (in m), "
+                      f"nothing to fit a viscosity to")
         shortest = MIN_DURATION
     else:
         period = 1.0 / f
@@ -234,7 +252,11 @@ def _check_stir(rec: Recording) -> tuple[list[str], list[str]]:
                       f"too short to fit: expected at least {shortest:.4g} s (max of {MIN_DURATION} s and one "
                       f"stirring period)")
     declared = rec.sensor.sample_rate
-    if declared is not None and abs(rate / declared - 1) > 0.2:
+    if declared is not None and not 1 / SAMPLE_RATE_UNIT_RATIO < rate / declared < SAMPLE_RATE_UNIT_RATIO:
+        errors.append(f"{rec.source('yaml')}: field 'sensor.sample_rate' = {declared} Hz, but column 't' in {where} "
+                      f"is sampled at {rate:.4g} Hz (median spacing): is t in ms or µs, or the rate in kHz? expected "
+                      f"t in s and the rate in Hz")
+    elif declared is not None and abs(rate / declared - 1) > 0.2:
         warnings.append(f"{rec.source('yaml')}: field 'sensor.sample_rate' = {declared} Hz, but column 't' in "
                         f"{where} is sampled at {rate:.4g} Hz (median spacing)")
     return errors, warnings
@@ -256,7 +278,8 @@ def validate_recording(rec: Recording) -> list[str]:
     Checks, in order: column shapes; metadata (check_metadata); finite columns, strictly increasing t,
     positions in metres with the rod clear of the wall and the bottom; then fitness: at least
     MIN_SAMPLES_PER_PERIOD samples per stirring period (stirring_frequency) at the median sample spacing, and a
-    duration of at least max(MIN_DURATION, one period). For a partial recording (complete: false) the fitness
+    duration of at least max(MIN_DURATION, one period), a rod that stirs at all, and clock readings that float64
+    resolves to TIME_RESOLUTION of the sample spacing. For a partial recording (complete: false) the fitness
     checks only warn, so that whatever a crash left can still be loaded.
     """
     check_columns_shape(rec)
