@@ -6,15 +6,25 @@ rest) are left out. Runs of steady samples that last at least ``min_duration`` [
 ``pause_speed`` [m/s] (a rod held still is not stirring) are the windows. The pause is an absolute speed, not a
 share of the top speed: a programme may span any range of speeds, and its slowest, where a yield stress shows,
 must not be dropped for being slow.
+
+s is the speed of the rod's path as the arm moved it, the GCV smoothing spline of the recorded positions
+(``diffstir.recording.smoothing``, the path the fit replays): differentiating the samples twice turns 1 µm rounding
+at 200 Hz, or an arm's 10-50 µm jitter, into rates of change far beyond any tolerance. ds/dt is the change of s
+across a span τ about each sample, the shortest (at least one sample spacing, at most ``min_duration``) over which
+its noise sqrt(2) σ_v / τ is a fifth of the tolerance's rate tol · s / T_min, σ_v the speed noise the smoothing
+leaves; a window therefore starts and ends up to τ / 2 inside the steady stretch.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..recording import Recording, RecordingError
+from ..recording.files import warn
+from ..recording.smoothing import smooth_path
 
 
 @dataclass(frozen=True)
@@ -33,6 +43,11 @@ class SpeedWindow:
         name = str(self.recording.path) if self.recording.path else (self.recording.name or "recording")
         return f"{name}@{self.start:.3g}-{self.end:.3g}s"
 
+
+#: The rate of change of the speed is read over the span where its noise is 1/RATE_SIGMAS of the tolerance's rate:
+#: noise alone then marks a steady sample unsteady with probability 6e-7 (5 σ, two-sided), once in hours of
+#: stirring at the spans' correlation times of 10-100 ms.
+RATE_SIGMAS = 5.0
 
 #: m/s: the rod moving slower than this is held still (1 mm/s is 10 µm between samples at 100 Hz, the size of an
 #: arm's position jitter), not stirring.
@@ -58,8 +73,19 @@ def speed_windows(recording: Recording, *, tolerance: float = 0.05, min_duration
     if not pause_speed >= 0:
         raise ValueError(f"behaviour.pause_speed = {pause_speed}; expected a speed in m/s, >= 0")
     t = recording.t
-    speed = np.linalg.norm(recording.velocity(), axis=1)
-    rate = np.abs(np.gradient(speed, t))
+    if t.size < 2:
+        raise RecordingError(f"{recording.source('csv')}: {t.size} rows; speed windows need at least 2")
+    path = smooth_path(t, np.stack([recording.x, recording.y], axis=-1))
+    message = path.jitter_message(recording.source("csv"))
+    if message is not None:
+        warn(message)
+    speed = path.speed(t)
+    # the rate over the span where its noise, sqrt(2) σ_v / span, is a fifth of the tolerance's rate
+    span = np.clip(RATE_SIGMAS * math.sqrt(2.0) * path.speed_noise * min_duration
+                   / (tolerance * np.maximum(speed, max(pause_speed, 1e-12))),
+                   np.median(np.diff(t)), min_duration)
+    before, after = np.maximum(t - span / 2, t[0]), np.minimum(t + span / 2, t[-1])
+    rate = np.abs(path.speed(after) - path.speed(before)) / (after - before)
     steady = (rate * min_duration < tolerance * speed) & (speed > pause_speed)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(np.int8), [0]])))
     windows = []
