@@ -158,3 +158,70 @@ def test_the_density_doc_holds_the_scripts_table():
                            capture_output=True, text=True).stdout
     assert table.count("\n") == 7
     assert table in (REPO / "docs" / "density.md").read_text()
+
+
+# -- the uncertainty from the readings' own scatter -----------------------------------------------------------
+
+def test_repeated_readings_give_intervals_that_hold_the_truth_95_percent_of_the_time():
+    """1000 blocks of 3 readings of G and of R, each with 3 mN noise (resolution far below it): Student's t with
+    the pooled 4 degrees of freedom covers the truth in 95 %, within 2 % (3 binomial σ of 1000 draws, 0.69 %)."""
+    rho, weight, sigma = 1000.0, 0.6, 0.003
+    truth = measurement(rho, weight)
+    rng = np.random.default_rng(2024)
+    hits = 0
+    for _ in range(1000):
+        m = DensityMeasurement.of_readings(list(truth.rod_weight + sigma * rng.standard_normal(3)),
+                                           list(truth.immersed_reading + sigma * rng.standard_normal(3)), H)
+        est = estimate_density(m, rod_radius=R_ROD, force_resolution=1e-7, depth_std=0.0)
+        assert est.uncertainty_source == "readings"
+        hits += est.ci95[0] < rho < est.ci95[1]
+    assert abs(hits / 1000 - 0.95) < 0.02
+
+
+def quiet_recording(density, sensor, noise, rng, rest=0.5):
+    """A 3 s stir of the paper's rig whose rod rests for ``rest`` [s] first, its force reading ``noise`` [N]."""
+    t = np.arange(0.0, 3.0, 0.005)
+    phase = 3.3 * np.clip(t - rest, 0.0, None)
+    return Recording(cup=CupGeometry(0.0425, fill_height=0.13), rod=RodGeometry(R_ROD, 0.08), sensor=sensor,
+                     density=density, t=t, x=0.015 * np.cos(phase), y=0.015 * np.sin(phase),
+                     force=0.05 * (t > rest) + noise * rng.standard_normal(t.size), name="noisy")
+
+
+def test_two_noisy_readings_get_the_interval_of_their_noise_not_of_the_resolution():
+    """The issue's block: G and R read once each, 4 mN off (1.4 % of the 0.385 N buoyancy together), 1 mN
+    resolution. The resolution's ±0.2 % misses the truth; the force's scatter where the rod rests, or the sensor's
+    stated noise, gives u = 4 mN per reading and an interval of ±2.9 % that holds it."""
+    rho = 1000.0
+    truth = measurement(rho)
+    block = DensityMeasurement(truth.rod_weight + 0.0027, truth.immersed_reading - 0.0027, H)
+    rng = np.random.default_rng(5)
+    resolution_only = estimate_recording_density(
+        quiet_recording(block, SensorSpec("tangential", resolution=0.001), 0.0, rng))
+    assert resolution_only.uncertainty_source == "resolution"
+    assert not resolution_only.ci95[0] < rho < resolution_only.ci95[1]  # ±0.2 %: the fault
+    quiet = estimate_recording_density(quiet_recording(block, SensorSpec("tangential", resolution=0.001), 0.004, rng))
+    stated = estimate_recording_density(
+        quiet_recording(block, SensorSpec("tangential", resolution=0.001, noise=0.004), 0.0, rng))
+    assert quiet.uncertainty_source == "quiet_stretch" and stated.uncertainty_source == "sensor.noise"
+    expected = rho * math.sqrt(2) * 0.004 / (rho * A * H * 9.81)  # kg/m³, the depth's share negligible
+    # the quiet stretch's 100 samples estimate σ within 4 / sqrt(2 · 99) = 28 %
+    assert quiet.std == pytest.approx(expected, rel=0.28) and stated.std == pytest.approx(expected, rel=0.01)
+    for est in (quiet, stated):
+        assert est.ci95[0] < rho < est.ci95[1]
+
+
+def test_repeated_readings_and_the_sensor_noise_round_trip_through_the_files(tmp_path):
+    from diffstir.recording import load_recording, save_recording
+    block = DensityMeasurement.of_readings([0.6, 0.603, 0.598], [0.21, 0.214], H)
+    rec = quiet_recording(block, SensorSpec("tangential", resolution=0.001, noise=0.004), 0.004,
+                          np.random.default_rng(1))
+    loaded = load_recording(save_recording(rec, tmp_path / "run"))
+    assert loaded.density == block and loaded.sensor.noise == 0.004
+    assert block.rod_weight == pytest.approx(0.6003333, abs=1e-7)
+    est = estimate_recording_density(loaded)
+    assert est.uncertainty_source == "readings"  # the readings' own scatter comes first
+    text = (tmp_path / "run" / "recording.yaml").read_text().replace("0.214]", "'0.2 N']")
+    (tmp_path / "run" / "recording.yaml").write_text(text)
+    with pytest.raises(RecordingError, match=r"recording.yaml: field 'density.immersed_reading' = '0.2 N' is not a "
+                                             r"number; expected N \(each repeated reading\)"):
+        load_recording(tmp_path / "run")

@@ -282,7 +282,8 @@ def density_estimate(recording: Recording, density: float | None) -> dict:
     ``density`` from the config when the recording has none."""
     if recording.density is not None:
         est = estimate_recording_density(recording)
-        return {"value": est.value, "ci95": list(est.ci95), "unit": "kg/m^3", "source": "archimedes"}
+        return {"value": est.value, "ci95": list(est.ci95), "unit": "kg/m^3", "source": "archimedes",
+                "uncertainty_source": est.uncertainty_source}
     return configured_density(density, f"{recording.source('yaml')}: no density block")
 
 

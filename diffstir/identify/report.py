@@ -24,7 +24,8 @@ def markdown(summary: dict) -> str:
     sel = summary["selected"]
     av = summary["apparent_viscosity"]
     d = summary["density"]
-    ci = f" (95 % CI {d['ci95'][0]:.1f}-{d['ci95'][1]:.1f})" if d["ci95"] else ""
+    ci = (f" (95 % CI {d['ci95'][0]:.1f}-{d['ci95'][1]:.1f}, uncertainty from {d.get('uncertainty_source')})"
+          if d["ci95"] else "")
     lines = [f"# Identification of {summary['recording']}", "",
              f"- density: {d['value']:.1f} kg/m³{ci}, from {d['source']}",
              f"- selected law: **{sel}** by {summary['selection']['criterion']}; lowest paper loss: "

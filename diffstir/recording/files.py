@@ -33,7 +33,7 @@ _KNOWN_FIELDS = {
     ("rig",): {"cup", "rod"},
     ("rig", "cup"): {"radius", "fill_height", "fill_volume"},
     ("rig", "rod"): {"radius", "immersion_depth"},
-    ("sensor",): {"mode", "axis", "one_sided", "resolution", "sample_rate", "time_constant"},
+    ("sensor",): {"mode", "axis", "one_sided", "resolution", "sample_rate", "time_constant", "noise"},
     ("density",): {"rod_weight", "immersed_reading", "immersed_depth", "rod_cross_section"},
 }
 
@@ -158,14 +158,24 @@ def parse_metadata(meta: object, where: str) -> dict:
         resolution=_get(sensor_d, ("sensor",), "resolution", where, "N", required=False),
         sample_rate=_get(sensor_d, ("sensor",), "sample_rate", where, "Hz", required=False),
         time_constant=_get(sensor_d, ("sensor",), "time_constant", where, "s", required=False),
+        noise=_get(sensor_d, ("sensor",), "noise", where, "N (1 sigma)", required=False),
     )
 
     density = None
     density_d = _block(meta, ("density",), where, required=False)
     if density_d is not None:
-        density = DensityMeasurement(
-            rod_weight=_get(density_d, ("density",), "rod_weight", where, "N", required=True),
-            immersed_reading=_get(density_d, ("density",), "immersed_reading", where, "N", required=True),
+        def readings(key: str) -> float | list[float]:  # one reading, or a list of repeated readings [N]
+            value = density_d.get(key)
+            if not isinstance(value, list):
+                return _get(density_d, ("density",), key, where, "N", required=True)
+            if not value:
+                raise RecordingError(f"{where}: field 'density.{key}' = []; expected a force in N or a list of "
+                                     f"repeated readings in N")
+            return [_get({key: v}, ("density",), key, where, "N (each repeated reading)", required=True)
+                    for v in value]
+
+        density = DensityMeasurement.of_readings(
+            rod_weight=readings("rod_weight"), immersed_reading=readings("immersed_reading"),
             immersed_depth=_get(density_d, ("density",), "immersed_depth", where, "m", required=True),
             rod_cross_section=_get(density_d, ("density",), "rod_cross_section", where, "m^2", required=False),
         )
@@ -209,11 +219,15 @@ def metadata_dict(*, cup: CupGeometry, rod: RodGeometry, sensor: SensorSpec, den
         meta["sensor"]["axis"] = [float(a) for a in sensor.axis]
     meta["sensor"]["one_sided"] = bool(sensor.one_sided)
     meta["sensor"].update(numbers(resolution=sensor.resolution, sample_rate=sensor.sample_rate,
-                                  time_constant=sensor.time_constant))
+                                  time_constant=sensor.time_constant, noise=sensor.noise))
     if density is not None:
         meta["density"] = numbers(
             rod_weight=density.rod_weight, immersed_reading=density.immersed_reading,
             immersed_depth=density.immersed_depth, rod_cross_section=density.rod_cross_section)
+        for key, repeated in (("rod_weight", density.rod_weight_readings),
+                              ("immersed_reading", density.immersed_readings)):
+            if repeated is not None:
+                meta["density"][key] = [float(v) for v in repeated]
     _merge(meta, extra_meta, (), where)
     return meta
 

@@ -55,8 +55,9 @@ class RodGeometry:
 class SensorSpec:
     """What the ``force`` column means: ``mode`` (component: F·axis, tangential: F·(-v/|v|), magnitude: |F|),
     ``axis`` (horizontal unit vector, cup frame, component mode only), ``one_sided`` (column holds max(0, value)),
-    ``resolution`` [N], nominal ``sample_rate`` [Hz], and ``time_constant`` [s], the sensor's first-order
-    response time τ as calibrated (τ dy/dt = x − y; None: not stated, taken as instantaneous)."""
+    ``resolution`` [N], nominal ``sample_rate`` [Hz], ``time_constant`` [s], the sensor's first-order
+    response time τ as calibrated (τ dy/dt = x − y; None: not stated, taken as instantaneous), and ``noise``
+    [N], the standard deviation (1 σ) of one reading as stated for the sensor (None: not stated)."""
 
     mode: Literal["component", "tangential", "magnitude"]
     axis: tuple[float, float] | None = None
@@ -64,18 +65,34 @@ class SensorSpec:
     resolution: float | None = None
     sample_rate: float | None = None
     time_constant: float | None = None
+    noise: float | None = None
 
 
 @dataclass(frozen=True)
 class DensityMeasurement:
     """Archimedes measurement with the stirring rod: weight in air ``rod_weight`` G [N], axial reading immersed
     at rest ``immersed_reading`` R [N], ``immersed_depth`` h [m], optional ``rod_cross_section`` A [m²]
-    (default pi rod.radius²). rho = (G - R) / (A h g)."""
+    (default pi rod.radius²). rho = (G - R) / (A h g). Where G or R was read repeatedly, ``rod_weight_readings``
+    and ``immersed_readings`` [N] hold the readings and ``rod_weight`` and ``immersed_reading`` their means."""
 
     rod_weight: float
     immersed_reading: float
     immersed_depth: float
     rod_cross_section: float | None = None
+    rod_weight_readings: tuple[float, ...] | None = None
+    immersed_readings: tuple[float, ...] | None = None
+
+    @classmethod
+    def of_readings(cls, rod_weight: float | list[float], immersed_reading: float | list[float],
+                    immersed_depth: float, rod_cross_section: float | None = None) -> "DensityMeasurement":
+        """The measurement of one reading or a list of repeated readings [N] of G and of R (their means)."""
+        def split(value):
+            if isinstance(value, (list, tuple, np.ndarray)):
+                readings = tuple(float(v) for v in value)
+                return (float(np.mean(readings)) if readings else math.nan), readings
+            return float(value), None
+        (g, g_readings), (r, r_readings) = split(rod_weight), split(immersed_reading)
+        return cls(g, r, float(immersed_depth), rod_cross_section, g_readings, r_readings)
 
     def cross_section(self, rod_radius: float | None) -> float:
         """A [m²]: ``rod_cross_section`` if given, else pi rod_radius² (``rod_radius`` in m)."""
