@@ -141,29 +141,78 @@ def test_without_a_compiler_auto_takes_the_torch_ops_and_fused_says_why(monkeypa
         transfer.use_fused("fused", torch.device("cpu"))
 
 
-def test_a_dead_builders_lock_is_removed_and_a_live_builders_waited_for(tmp_path, caplog):
-    """A build lock older than the stale age is removed at once with a warning naming it; a younger one is waited
-    for while it stands, and removed once it has aged past the stale age; no lock, no wait."""
-    import os
+def _lock_of(directory, pid: int, host: str | None = None, started: float | None = None) -> None:
+    import json
+    import socket
+    import time
+
+    from diffstir.mpm.transfer import _process_start
+    (directory / "build.lock").write_text(json.dumps({
+        "pid": pid, "host": host or socket.gethostname(), "started": time.time() if started is None else started,
+        "process_start": _process_start(pid)}))
+
+
+def test_a_dead_builders_lock_is_taken_over_at_once_with_a_notice(tmp_path, caplog):
+    import subprocess
+    import sys
+    import time
+
+    from diffstir.mpm.transfer import build_lock
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    _lock_of(tmp_path, int(dead.stdout))  # a builder killed while it held the lock, a moment ago
+    started = time.monotonic()
+    with caplog.at_level("WARNING", logger="diffstir.mpm.transfer"), build_lock(tmp_path):
+        owner = (tmp_path / "build.lock").read_text()
+    assert time.monotonic() - started < 1.0
+    assert f"build.lock of pid {int(dead.stdout)}" in caplog.text and "gone" in caplog.text
+    assert f'"pid": {__import__("os").getpid()}' in owner and not (tmp_path / "build.lock").exists()
+
+
+def test_a_live_builders_lock_is_waited_for_and_another_hosts_old_lock_taken_over(tmp_path, caplog):
+    import subprocess
+    import sys
     import threading
     import time
 
-    from diffstir.mpm.transfer import wait_for_build_lock
-    lock = tmp_path / "lock"
+    from diffstir.mpm.transfer import build_lock
+    builder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        _lock_of(tmp_path, builder.pid)  # alive: waited for until it lets go after 0.5 s
+        threading.Timer(0.5, (tmp_path / "build.lock").unlink).start()
+        started = time.monotonic()
+        with caplog.at_level("WARNING", logger="diffstir.mpm.transfer"), build_lock(tmp_path, poll=0.05):
+            pass
+        assert 0.45 < time.monotonic() - started < 5.0 and f"waiting for pid {builder.pid}" in caplog.text
+    finally:
+        builder.kill()
+        builder.wait()
+    _lock_of(tmp_path, 1, host="another-host", started=time.time() - 3600.0)
     started = time.monotonic()
-    wait_for_build_lock(tmp_path, stale_after=60.0)
+    with build_lock(tmp_path, stale_after=600.0):
+        pass
     assert time.monotonic() - started < 1.0
-    lock.touch()
-    os.utime(lock, (time.time() - 3600.0, time.time() - 3600.0))
-    with caplog.at_level("WARNING", logger="diffstir.mpm.transfer"):
-        wait_for_build_lock(tmp_path, stale_after=600.0)
-    assert not lock.exists() and str(lock) in caplog.text
-    lock.touch()  # a live builder that finishes after 0.3 s
-    threading.Timer(0.3, lock.unlink).start()
-    started = time.monotonic()
-    wait_for_build_lock(tmp_path, stale_after=60.0, poll=0.05)
-    assert 0.25 < time.monotonic() - started < 5.0
-    lock.touch()  # a builder that died just now: waited for until the lock is 0.5 s old
-    started = time.monotonic()
-    wait_for_build_lock(tmp_path, stale_after=0.5, poll=0.05)
-    assert not lock.exists() and 0.4 < time.monotonic() - started < 5.0
+
+
+def test_the_build_is_keyed_by_what_changes_it_and_reused_without_a_rebuild(monkeypatch, tmp_path):
+    import hashlib
+    import sysconfig
+
+    import torch.utils.cpp_extension
+
+    from diffstir.mpm import transfer
+    key = transfer.build_key()
+    assert key["torch"] == torch.__version__ and key["abi"] == sysconfig.get_config_var("EXT_SUFFIX")
+    assert key["source_sha256"] == hashlib.sha256(transfer.SOURCE.read_bytes()).hexdigest()
+    assert key["flags"] == ["-O3"] and key["compiler"] and "compiler_version" in key
+    directory = transfer.build_directory()
+    monkeypatch.setattr(transfer, "build_key", lambda: {**key, "compiler": "/opt/other/c++"})
+    assert transfer.build_directory() != directory and transfer.build_directory().parent == directory.parent
+    monkeypatch.undo()
+    transfer.kernels()  # built (or found built) under its key
+    # a process of another environment with the same key reuses the build: no compiler, no ninja, no wait
+    monkeypatch.setattr(torch.utils.cpp_extension, "load", lambda *a, **k: pytest.fail("rebuilt"))
+    transfer._build.cache_clear()
+    try:
+        assert transfer.kernels() is not None
+    finally:
+        transfer._build.cache_clear()

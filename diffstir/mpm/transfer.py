@@ -15,18 +15,29 @@ compute each particle's weights once and touch each of its nodes once, with thei
 forward mode, registered as torch operators so that ``torch.compile`` calls them from its graph; the torch ops
 build (C, N, 3^d) intermediates and scatter them instead.
 
-Processes that start together build the kernels once: the first holds a lock file in the build directory while it
-compiles, the others wait. torch's own wait has no timeout, so a builder killed mid-build would leave every later
-process waiting forever; a lock older than ``STALE_LOCK_SECONDS`` is removed with a warning instead
-(``wait_for_build_lock``).
+The build directory is keyed by everything that changes the build (``build_key``: torch's version, the compiler's
+path and ``--version``, the flags, the source's SHA-256, Python's extension ABI), so that environments of the same
+key share one build and environments of different keys never rebuild each other's. Processes that start together
+build the kernels once: the first holds a lock file that names its pid, host and start time while it compiles, the
+others wait for it; a lock whose owner has died on this host is taken over at once with a one-line notice
+(``build_lock``).
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
+import importlib.util
+import json
 import logging
 import os
+import shutil
+import socket
+import subprocess
+import sys
+import sysconfig
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -37,47 +48,145 @@ from .grid import Stencil
 
 log = logging.getLogger(__name__)
 SOURCE = Path(__file__).parent / "csrc" / "transfer.cpp"
-#: Age [s] past which the build lock was left by a process that died while building: a build takes about 50 s.
+NAME = "diffstir_transfer"
+FLAGS = ("-O3",)
+#: Age [s] past which a lock of another host, whose owner cannot be asked, counts as left by a dead builder: a
+#: build takes about 50 s.
 STALE_LOCK_SECONDS = 600.0
 
 
 @functools.cache
 def _build():
     """The compiled kernels' module and None, or None and the error that stopped the build (tried once)."""
-    from torch.utils.cpp_extension import load
-    log.info("loading the fused transfer kernels (%s; compiled on a machine's first use, about 50 s)", SOURCE)
     try:
         directory = build_directory()
         directory.mkdir(parents=True, exist_ok=True)
-        wait_for_build_lock(directory)
-        return load(name="diffstir_transfer", sources=[str(SOURCE)], extra_cflags=["-O3"],
-                    build_directory=str(directory)), None
+        built = directory / "built.json"
+        if not built.exists():
+            with build_lock(directory):
+                if not built.exists():
+                    log.info("compiling the fused transfer kernels (%s) into %s: about 50 s, once per build key",
+                             SOURCE, directory)
+                    (directory / "lock").unlink(missing_ok=True)  # torch's own lock, left by a killed builder
+                    from torch.utils.cpp_extension import load
+                    load(name=NAME, sources=[str(SOURCE)], extra_cflags=list(FLAGS), build_directory=str(directory))
+                    built.write_text(json.dumps(build_key(), indent=1) + "\n")
+        return _import(directory / f"{NAME}.so"), None
     except Exception as error:  # compiler, ninja or header missing: a build problem, not a simulation one
         return None, error
 
 
+def _import(library: Path):
+    """The built extension module ``library``, imported without asking ninja whether it is up to date (its build
+    directory's key says so)."""
+    if NAME in sys.modules:
+        return sys.modules[NAME]
+    spec = importlib.util.spec_from_file_location(NAME, library)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sys.modules[NAME] = module
+    return module
+
+
+@functools.cache
+def build_key() -> dict:
+    """Everything that changes the compiled kernels: torch's version, the C++ compiler (``$CXX``, else ``c++``: its
+    path and ``--version``), the flags, the source's SHA-256 and Python's extension ABI (``EXT_SUFFIX``)."""
+    compiler = shutil.which(os.environ.get("CXX", "c++")) or os.environ.get("CXX", "c++")
+    try:
+        version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        version = ""
+    return {"torch": torch.__version__, "compiler": compiler, "compiler_version": version.strip(),
+            "flags": list(FLAGS), "source_sha256": hashlib.sha256(SOURCE.read_bytes()).hexdigest(),
+            "abi": sysconfig.get_config_var("EXT_SUFFIX")}
+
+
 def build_directory() -> Path:
     """Where the kernels are compiled and cached: ``$TORCH_EXTENSIONS_DIR`` (default ``~/.cache/torch_extensions``)
-    / ``diffstir_transfer-<torch version>``, rebuilt for each torch."""
+    / ``diffstir_transfer-<first 16 hex digits of the SHA-256 of build_key()>``."""
     root = os.environ.get("TORCH_EXTENSIONS_DIR") or Path.home() / ".cache" / "torch_extensions"
-    return Path(root) / f"diffstir_transfer-{torch.__version__.replace('+', '_')}"
+    digest = hashlib.sha256(json.dumps(build_key(), sort_keys=True).encode()).hexdigest()
+    return Path(root) / f"{NAME}-{digest[:16]}"
 
 
-def wait_for_build_lock(directory: Path, stale_after: float = STALE_LOCK_SECONDS, poll: float = 1.0) -> None:
-    """Return once ``directory`` holds no build lock (``lock``): while another process builds, wait, polling every
-    ``poll`` s; a lock older than ``stale_after`` [s] is a dead builder's and is removed, with a warning."""
-    lock = directory / "lock"
+def _process_start(pid: int) -> int | None:
+    """The start time of process ``pid`` in clock ticks since boot (/proc/<pid>/stat), None where unknown."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _owner_alive(owner: dict) -> bool:
+    """Whether the process that wrote a lock's ``owner`` record, on this host, still runs (the same pid started
+    at the same time)."""
+    if int(owner.get("pid", 0)) <= 0:
+        return False
+    try:
+        os.kill(int(owner["pid"]), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    start = owner.get("process_start")
+    return start is None or _process_start(int(owner["pid"])) in (None, start)
+
+
+@contextmanager
+def build_lock(directory: Path, stale_after: float = STALE_LOCK_SECONDS, poll: float = 0.5):
+    """Hold ``directory``/build.lock: a file created exclusively that records this process's pid, host, process
+    start and the time [s since the epoch]. While another live process holds it, wait, polling every ``poll`` s,
+    with one notice naming it; a lock whose owner has died on this host (or, of another host, older than
+    ``stale_after`` [s]) is taken over at once with a one-line notice."""
+    lock = directory / "build.lock"
+    record = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(),
+                         "process_start": _process_start(os.getpid())})
+    told = False
     while True:
         try:
-            age = time.time() - lock.stat().st_mtime
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            owner = _read_owner(lock)
+            if owner is None:
+                continue
+            dead = (not _owner_alive(owner) if owner.get("host") == socket.gethostname()
+                    else time.time() - owner.get("started", 0.0) > stale_after)
+            if dead:
+                log.warning("taking over the fused kernels' build lock %s of pid %s on %s, which is gone", lock,
+                            owner.get("pid"), owner.get("host"))
+                lock.unlink(missing_ok=True)
+            else:
+                if not told:
+                    log.warning("waiting for pid %s on %s, which has been building the fused kernels for %.0f s "
+                                "(%s)", owner.get("pid"), owner.get("host"), time.time() - owner.get("started", 0.0),
+                                lock)
+                    told = True
+                time.sleep(poll)
+            continue
+        with os.fdopen(fd, "w") as file:
+            file.write(record)
+        break
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _read_owner(lock: Path, settle: float = 5.0) -> dict | None:
+    """A lock's owner record; None where the lock is gone. A lock that stays empty or unreadable for ``settle`` s
+    (its owner died between creating and writing it) reads as a dead owner's."""
+    waited = 0.0
+    while True:
+        try:
+            return json.loads(lock.read_text())
         except FileNotFoundError:
-            return
-        if age > stale_after:
-            log.warning("removing the fused kernels' build lock %s, left %.0f s ago by a process that did not "
-                        "finish its build", lock, age)
-            lock.unlink(missing_ok=True)
-            return
-        time.sleep(min(poll, stale_after - age + 0.01))
+            return None
+        except (OSError, ValueError):
+            if waited >= settle:
+                return {"pid": 0, "host": socket.gethostname(), "started": 0.0}
+            time.sleep(0.1)
+            waited += 0.1
 
 
 def kernels():
