@@ -147,6 +147,12 @@ def test_rig_effects_jitter_rounding_dead_start_and_clock():
     reading = rig.read(times, force, np.tile([-1.0, 0.0], (times.size, 1)), sample, np.random.default_rng(0))
     assert np.all(reading[sample < 0.25] == 0) and np.allclose(reading[sample >= 0.25], 0.2)
     assert rig.spec().time_constant is None and "time_origin" in rig.as_dict()
+    repeated = SensorModel(sample_rate=1000.0, noise_std=0.003, resolution=0.0, density_hold=0.001, density_repeats=5)
+    m, _ = density_block(1050.0, Rig(), repeated, np.random.default_rng(0))
+    assert len(m.rod_weight_readings) == len(m.immersed_readings) == 5
+    assert m.rod_weight == pytest.approx(np.mean(m.rod_weight_readings)) and np.std(m.immersed_readings) > 1e-4
+    with pytest.raises(ValueError, match="sensor.density_repeats = 0; expected a whole number >= 1"):
+        SensorModel(density_repeats=0)
     for field in ("dead_start", "position_jitter", "position_resolution", "time_origin"):
         with pytest.raises(ValueError, match=f"sensor.{field} = -1.0; expected a number >= 0 in (s|m)"):
             SensorModel(**{field: -1.0})

@@ -90,6 +90,7 @@ class SensorModel:
         position_jitter: σ_p [m], white noise per sample and axis on the recorded rod position (encoder, tracker).
         position_resolution: q_p [m], the step the recorded positions are rounded to (0: none).
         time_origin: t_origin [s], the rig clock's value at the programme's start, added to the recorded times.
+        density_repeats: how many times each density reading (G and R) is taken; more than 1 writes the list.
     """
 
     mode: str = "tangential"
@@ -110,6 +111,7 @@ class SensorModel:
     position_jitter: float = 0.0
     position_resolution: float = 0.0
     time_origin: float = 0.0
+    density_repeats: int = 1
 
     def __post_init__(self) -> None:
         if self.mode not in SENSOR_MODES:
@@ -134,6 +136,8 @@ class SensorModel:
         stated = self.stated_time_constant
         if stated is not None and not (isinstance(stated, (int, float)) and math.isfinite(stated) and stated >= 0):
             raise ValueError(f"sensor.stated_time_constant = {stated!r}; expected null or a number >= 0 in s")
+        if not (isinstance(self.density_repeats, int) and self.density_repeats >= 1):
+            raise ValueError(f"sensor.density_repeats = {self.density_repeats!r}; expected a whole number >= 1")
         if not (math.isfinite(self.gain_error) and self.gain_error > -1):
             raise ValueError(f"sensor.gain_error = {self.gain_error!r}; expected a relative error > -1 (1)")
 

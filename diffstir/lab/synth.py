@@ -94,15 +94,21 @@ def density_block(density: float, rig: Rig, sensor: SensorModel, rng: np.random.
 
     G = ρ_rod π r² L g (a wooden rod of length L), R = G − ρ g π r² h with the rod held at the nominal immersion
     depth ± DEPTH_PLACEMENT (uniform); G and R are read through ``sensor.static_reading`` (gain, offset, averaged
-    noise, quantisation), h on a ruler with DEPTH_RESOLUTION (0.1 mm) steps.
+    noise, quantisation), ``sensor.density_repeats`` times each (more than once: the lists of readings), h on a
+    ruler with DEPTH_RESOLUTION (0.1 mm) steps.
     """
     area = math.pi * rig.rod.radius**2
     weight = ROD_DENSITY * area * rig.rod.length * rig.gravity
     depth = rig.rod.immersion_depth + rng.uniform(-DEPTH_PLACEMENT, DEPTH_PLACEMENT)
     immersed = weight - density * rig.gravity * area * depth
-    m = DensityMeasurement(rod_weight=sensor.static_reading(weight, rng),
-                           immersed_reading=sensor.static_reading(immersed, rng),
-                           immersed_depth=float(quantise(np.array([depth]), DEPTH_RESOLUTION)[0]))
+    measured_depth = float(quantise(np.array([depth]), DEPTH_RESOLUTION)[0])
+    if sensor.density_repeats == 1:
+        m = DensityMeasurement(rod_weight=sensor.static_reading(weight, rng),
+                               immersed_reading=sensor.static_reading(immersed, rng), immersed_depth=measured_depth)
+    else:
+        g = [sensor.static_reading(weight, rng) for _ in range(sensor.density_repeats)]
+        r = [sensor.static_reading(immersed, rng) for _ in range(sensor.density_repeats)]
+        m = DensityMeasurement.of_readings(g, r, measured_depth)
     truth = {"rod_weight": weight, "immersed_reading": immersed, "immersed_depth": depth,
              "rod_density": ROD_DENSITY, "rod_length": rig.rod.length, "gravity": rig.gravity}
     return m, truth
