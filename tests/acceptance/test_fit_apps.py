@@ -1,0 +1,69 @@
+"""diffstir-fit (one recording, experiment=behaviour, experiment=mixing) and diffstir-diagnose on their default
+configurations, on the bundled rig recordings (docs/acceptance.md)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from acceptance_commands import example, full_only, ok, run, truth
+
+from diffstir.lab import Fluid
+
+pytestmark = [pytest.mark.acceptance, full_only]
+
+
+def truth_viscosity(name: str, shear_rate: float) -> float:
+    """The truth law's viscosity [Pa s] of the bundled recording ``name`` at ``shear_rate`` [1/s]."""
+    import torch
+
+    fluid = truth(name)["fluid"]
+    law = Fluid(name=fluid["name"], density=fluid["density"], law=fluid["law"]).make_law()
+    with torch.no_grad():
+        return float(law(torch.tensor([shear_rate], dtype=torch.float64)))
+
+
+@pytest.mark.parametrize("name", ["rig_jitter_1khz", "rig_dead_start"])
+def test_fit_reads_density_and_viscosity_within_its_intervals(name, tmp_path):
+    result = ok(run("diffstir-fit", f"recording={example(name)}", "out=fit", cwd=tmp_path, timeout=1800))
+    report = json.loads((tmp_path / "fit" / "report.json").read_text())
+    assert (tmp_path / "fit" / "report.md").is_file()
+    density = report["density"]
+    lo, hi = density["ci95"]
+    assert lo <= truth(name)["fluid"]["density"] <= hi
+    av = report["apparent_viscosity"]
+    lo, hi = av["at_effective_shear_rate_ci95"]
+    assert lo <= truth_viscosity(name, av["effective_shear_rate"]) <= hi
+    if truth(name)["sensor"]["dead_start"] > 0:
+        assert report["windows"]["start"] >= truth(name)["sensor"]["dead_start"] - 0.01
+        assert "dead start" in (result.stdout + result.stderr + (tmp_path / "fit" / "report.md").read_text()).lower()
+
+
+def test_behaviour_classifies_three_constant_speed_stirs_at_200_hz(tmp_path):
+    recordings = ",".join(example(f"rig_behaviour_{s}") for s in ("slow", "mid", "fast"))
+    ok(run("diffstir-fit", "experiment=behaviour", f"recordings=[{recordings}]", "out=behaviour", cwd=tmp_path,
+           timeout=3600))
+    report = json.loads((tmp_path / "behaviour" / "report.json").read_text())
+    assert len(report["points"]) >= 3  # one window per speed
+    # a Carreau fluid (n = 0.6, lambda = 0.5 s) far past its 2 1/s corner: shear-thinning
+    assert report["behaviour"]["class"] == "shear_thinning"
+
+
+def test_mixing_tracks_the_blend_between_its_components(tmp_path):
+    blend = truth("rig_blend")["fluid"]["blend"]
+    eta = [blend["first"]["law"]["params"]["eta"], blend["second"]["law"]["params"]["eta"]]
+    ok(run("diffstir-fit", "experiment=mixing", f"recordings=[{example('rig_blend')}]",
+           f"mixing.viscosities=[{eta[0]},{eta[1]}]", f"mixing.fraction={blend['fraction']}", "out=mixing",
+           cwd=tmp_path, timeout=1800))
+    report = json.loads((tmp_path / "mixing" / "report.json").read_text())
+    course = report["mixing"]["time_course"]
+    assert len(course) >= 2  # 1.5 s in 0.5 s windows
+    assert (tmp_path / "mixing" / "time_course.png").is_file()
+
+
+def test_diagnose_runs_its_default_candidates(tmp_path):
+    ok(run("diffstir-diagnose", f"recording={example('rig_jitter_1khz')}", "out=diagnosis", cwd=tmp_path,
+           timeout=3600))
+    diagnosis = json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())
+    assert diagnosis["verdict"]
+    assert (tmp_path / "diagnosis" / "diagnosis.md").is_file()

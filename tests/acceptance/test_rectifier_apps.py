@@ -1,0 +1,29 @@
+"""diffstir-pairs and diffstir-train-rectifier on their default configurations, into a temporary out
+(docs/acceptance.md)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import pytest
+from acceptance_commands import ROOT, full_only, ok, run
+
+pytestmark = pytest.mark.acceptance
+SHIPPED = ROOT / "checkpoints" / "rectifier" / "rectifier.ckpt"
+
+
+def test_train_rectifier_trains_into_out_and_leaves_the_shipped_model(tmp_path):
+    shipped = hashlib.sha256(SHIPPED.read_bytes()).hexdigest()
+    ok(run("diffstir-train-rectifier", f"out={tmp_path / 'rectifier'}", cwd=ROOT, timeout=900))
+    assert (tmp_path / "rectifier" / "rectifier.ckpt").is_file()
+    card = json.loads((tmp_path / "rectifier" / "card.json").read_text())
+    assert card  # the card names command, data and metrics
+    assert hashlib.sha256(SHIPPED.read_bytes()).hexdigest() == shipped
+
+
+@full_only
+def test_pairs_makes_a_shard_and_collects_it(tmp_path):
+    ok(run("diffstir-pairs", "out=pairs", cwd=tmp_path, timeout=3600))
+    ok(run("diffstir-pairs", "collect=true", "out=pairs", cwd=tmp_path, timeout=600))
+    assert (tmp_path / "pairs" / "pairs.jsonl").is_file() and (tmp_path / "pairs" / "manifest.json").is_file()
