@@ -8,9 +8,12 @@ identification's fits (``identify.jobs``) and the diagnosis's candidates (``diag
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import queue
+import signal
+import sys
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from typing import Callable, Iterator, Protocol
 
@@ -45,7 +48,9 @@ class Workers:
             for job, result in workers.completed():   # more jobs may be submitted meanwhile
                 ...
 
-    A job that fails raises from ``completed`` once the jobs already running have finished.
+    A job that fails raises from ``completed`` once the jobs already running have finished. Leaving the ``with``
+    block on an exception (a failed job, KeyboardInterrupt from SIGINT or SIGTERM) ends the worker processes at
+    once; each worker also dies with this process if it is killed (``_start_worker``).
     """
 
     def __init__(self, count: int, report: Callable[[tuple], None]):
@@ -59,15 +64,31 @@ class Workers:
             context = multiprocessing.get_context("spawn")  # fork would copy the parent's torch thread pools
             self.events = context.Queue()
             self.pool = ProcessPoolExecutor(count, mp_context=context, initializer=_start_worker,
-                                            initargs=(self.events, torch.get_num_threads()))
+                                            initargs=(self.events, torch.get_num_threads(), os.getpid()))
             self.slots = count
 
     def __enter__(self) -> "Workers":
         return self
 
-    def __exit__(self, *exc) -> None:
-        if self.pool is not None:
+    def __exit__(self, exc_type, *exc) -> None:
+        if self.pool is None:
+            return
+        if exc_type is None:
             self.pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            self.terminate()
+
+    def terminate(self, grace: float = 2.0) -> None:
+        """End the worker processes now: SIGTERM, then SIGKILL for any still alive after ``grace`` [s]."""
+        processes = list((self.pool._processes or {}).values())
+        for process in processes:
+            process.terminate()
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.join(grace)
+            if process.is_alive():
+                process.kill()
+                process.join()
 
     def submit(self, job: Job) -> None:
         self.waiting.append(job)
@@ -124,12 +145,29 @@ class Workers:
 
 
 _EVENTS = None  # a worker's event queue, set once by ``_start_worker``
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
-def _start_worker(events, threads: int) -> None:
+def _start_worker(events, threads: int, parent: int) -> None:
+    """A worker's set-up: its event queue and torch threads; SIGINT ignored (a terminal's Ctrl-C reaches the whole
+    process group, and the parent ends its workers); on Linux, SIGKILL when the parent process ``parent`` dies."""
     global _EVENTS
     _EVENTS = events
     torch.set_num_threads(threads)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent)
+
+
+def die_with_parent(parent: int) -> None:
+    """Have the kernel send this process SIGKILL when the thread that started it exits (Linux
+    ``prctl(PR_SET_PDEATHSIG)``); exit at once if ``parent`` has died already. Elsewhere, nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG)")
+    if os.getppid() != parent:
+        os._exit(1)
 
 
 def _run_in_worker(job: Job) -> object:

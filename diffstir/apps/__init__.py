@@ -1,10 +1,33 @@
-"""Command-line applications; the only modules that import Hydra."""
+"""Command-line applications; the only modules that import Hydra.
 
+Every app runs through ``command``: it prints its own help page for ``-h``/``--help``, turns the project's errors
+(``DiffstirError``: a recording, a setting, an output folder) into one line on stderr and exit status 2
+(``HYDRA_FULL_ERROR=1`` re-raises them with the full traceback), and turns SIGINT and SIGTERM into one line and exit
+status 128 + the signal's number (130, 143), keeping what the run has written. Exit status 0: done.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import signal
+import sys
 from pathlib import Path
+from typing import Callable
 
-from omegaconf import DictConfig
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from hydra.errors import InstantiationException
+from hydra.utils import to_absolute_path
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
+from diffstir.errors import ConfigError, DiffstirError
 from diffstir.parallel import default_workers
+from diffstir.recording import load_recording
+from diffstir.recording.digest import recording_digest
 
 #: The project's Hydra configs (the repository's top-level conf/), as an absolute path so that the apps find them
 #: whether started as console scripts, with python -m, or from another working directory.
@@ -14,3 +37,159 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 def config_workers(cfg: DictConfig) -> int:
     """The config's ``workers``: processes for fits side by side (null: one per CPU, one on a GPU)."""
     return default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers)
+
+
+def check_choice(setting: str, value, choices) -> None:
+    """Raise ConfigError unless ``value`` is one of ``choices``; ``setting`` is its name on the command line."""
+    if value not in choices:
+        raise ConfigError(f"{setting} = {value!r}; choose from {', '.join(map(str, choices))}")
+
+
+def check_choices(setting: str, values, choices) -> None:
+    """Raise ConfigError unless every one of ``values`` is one of ``choices``."""
+    unknown = [v for v in values if v not in choices]
+    if unknown:
+        raise ConfigError(f"{setting}: unknown {', '.join(map(str, unknown))}; choose from "
+                          f"{', '.join(map(str, choices))}")
+
+
+def recording_key(root: DictConfig) -> str:
+    """``<name>-<first 8 hex digits of its content digest>`` of each recording (``recording``, else
+    ``recordings``) of the config ``root``, joined by ``+``."""
+    node = root._get_node("recording")
+    paths = [root.recording] if node is not None and not node._is_missing() else list(root.get("recordings", []))
+    return "+".join(f"{Path(str(p)).resolve().name}-{recording_digest(load_recording(to_absolute_path(str(p))))[:8]}"
+                    for p in paths)
+
+
+def run_folder(parent: str, *, _root_: DictConfig) -> str:
+    """A run's default output folder (``${run_folder:outputs/fit}`` in conf/fit.yaml): ``parent/<recording_key>``,
+    so that the same command on the same recording resumes its run and another recording of the same name does
+    not; in a sweep (``-m``), the job's own folder in the sweep's."""
+    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        return str(HydraConfig.get().runtime.output_dir)
+    return f"{parent}/{recording_key(_root_)}"
+
+
+class Run:
+    """What the app running in this process has written, for the line an interruption prints."""
+
+    out: Path | None = None
+    kept: tuple[str, ...] = ()
+
+    @classmethod
+    def writes(cls, out: Path, *kept: str) -> Path:
+        """Make the output folder ``out`` (after the run's inputs passed their checks) and name the files in it
+        that an interrupted run keeps; returns ``out``."""
+        out.mkdir(parents=True, exist_ok=True)
+        cls.out, cls.kept = out, kept
+        return out
+
+    @classmethod
+    def kept_line(cls) -> str:
+        if cls.out is None or not cls.out.exists():
+            return "nothing written"
+        files = [cls.out / name for name in cls.kept if (cls.out / name).exists()]
+        return "kept " + ", ".join(map(str, files or [cls.out]))
+
+
+def one_line(error: BaseException) -> str:
+    """The message of a user's error in one line: a DiffstirError's own; a setting's error (OmegaConf, a config's
+    instantiation) as its first line, with the setting's key."""
+    if isinstance(error, InstantiationException) and error.__cause__ is not None:
+        key = getattr(error, "full_key", None)
+        return (f"{key}: " if key else "") + str(error.__cause__).splitlines()[0]
+    if isinstance(error, OmegaConfBaseException):
+        first = str(error).splitlines()[0]
+        key = getattr(error, "full_key", None)
+        return f"{first} (set it on the command line: {key}=...)" if isinstance(error, MissingMandatoryValue) \
+            else first
+    return " ".join(str(error).split("\n"))
+
+
+def _raise_interrupted(signum, frame) -> None:
+    """SIGINT and SIGTERM raise KeyboardInterrupt naming the signal, so that every ``finally`` runs and whatever
+    handles an interruption (a recording session marks its files unfinished) handles both."""
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _signal_number(stop: KeyboardInterrupt) -> signal.Signals:
+    """The signal that ``stop`` stands for: the one it names, else SIGINT."""
+    name = stop.args[0] if stop.args and isinstance(stop.args[0], str) else ""
+    return signal.Signals[name] if name in signal.Signals.__members__ else signal.SIGINT
+
+
+def _remove_empty_run_dir() -> None:
+    """Remove the run directory Hydra made for this job when the job wrote nothing into it."""
+    try:
+        run_dir = Path(HydraConfig.get().runtime.output_dir)
+    except ValueError:  # no Hydra config: not inside a job
+        return
+    if run_dir.resolve() != Path.cwd().resolve() and run_dir.is_dir() and not any(run_dir.iterdir()):
+        run_dir.rmdir()
+
+
+def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], None]], Callable[[], None]]:
+    """Decorate an app's task function ``task(cfg)`` into the console entry point ``name`` (e.g. ``diffstir-fit``)
+    composed from ``conf/<config_name>.yaml``; see the module docstring."""
+
+    def decorate(task: Callable[[DictConfig], None]) -> Callable[[], None]:
+        @functools.wraps(task)
+        def guarded(cfg: DictConfig) -> None:
+            try:
+                return task(cfg)
+            except (DiffstirError, OmegaConfBaseException, InstantiationException) as error:
+                if os.environ.get("HYDRA_FULL_ERROR") == "1":
+                    raise
+                print(f"{name}: error: {one_line(error)}", file=sys.stderr, flush=True)
+                sys.exit(2)
+            finally:
+                _remove_empty_run_dir()
+
+        hydra_main = hydra.main(config_path=CONF_DIR, config_name=config_name, version_base="1.3")(guarded)
+
+        def main() -> None:
+            if any(arg in ("-h", "--help") for arg in sys.argv[1:]):
+                print(help_page(name, config_name, task.__module__))
+                return
+            Run.out, Run.kept = None, ()
+            if not OmegaConf.has_resolver("run_folder"):
+                OmegaConf.register_new_resolver("run_folder", run_folder)
+            handlers = {sig: signal.signal(sig, _raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                hydra_main()
+            except KeyboardInterrupt as stop:
+                sig = _signal_number(stop)
+                print(f"{name}: interrupted ({sig.name}); {Run.kept_line()}", file=sys.stderr, flush=True)
+                sys.exit(128 + sig)
+            finally:
+                for sig, handler in handlers.items():
+                    signal.signal(sig, handler)
+
+        return main
+
+    return decorate
+
+
+def help_page(name: str, config_name: str, module: str) -> str:
+    """``name --help``: a usage line, the app's examples (its module docstring), its options with their comments
+    (``conf/<config_name>.yaml``) and the options of the config groups it composes."""
+    text = (Path(CONF_DIR) / f"{config_name}.yaml").read_text(encoding="utf-8")
+    options = re.sub(r"^  - override hydra/.*\n", "", text.split("\nhydra:")[0], flags=re.M).rstrip()
+    groups = []
+    for line in re.findall(r"^  - (?!_self_|override )(\S+?):", text, flags=re.M):
+        group, _, package = line.partition("@")
+        folder = Path(CONF_DIR) / group
+        if folder.is_dir():
+            choices = sorted(p.stem for p in folder.glob("*.yaml"))
+            groups.append(f"  {package or group:<22} {group}: {', '.join(choices)}")
+    doc = (sys.modules[module].__doc__ or "").strip()
+    parts = [f"usage: {name} [key=value ...] [group=option ...]   (Hydra overrides; -m: a sweep)", "",
+             doc, "", "Options (conf/" + config_name + ".yaml; set any key on the command line, "
+             "~key removes it):", "", options]
+    if groups:
+        parts += ["", "Config groups (group=option):", *groups]
+    parts += ["", "Exit status: 0 done; 2 a recording, setting or output folder refused (one line on stderr,",
+              "HYDRA_FULL_ERROR=1 for the traceback); 130 / 143 interrupted by SIGINT / SIGTERM (what was written",
+              "is kept). Hydra's own options: --hydra-help."]
+    return "\n".join(parts)

@@ -9,31 +9,37 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig
 
-from diffstir.apps import CONF_DIR, config_workers
-from diffstir.diagnose import diagnose, write_diagnosis
+from diffstir.apps import Run, check_choices, command, config_workers
+from diffstir.diagnose import CANDIDATES, diagnose, write_diagnosis
+from diffstir.errors import ConfigError, OutputError
 from diffstir.identify import identify
 from diffstir.recording import load_recording
 
 
-@hydra.main(config_path=CONF_DIR, config_name="diagnose", version_base="1.3")
+@command("diffstir-diagnose", "diagnose")
 def main(cfg: DictConfig) -> None:
     torch.set_num_threads(int(cfg.threads))
-    out = Path(to_absolute_path(str(cfg.out)))
+    check_choices("candidates", list(cfg.candidates), CANDIDATES)
     recording = load_recording(to_absolute_path(str(cfg.recording)))
+    identification = None if cfg.identification is None else Path(to_absolute_path(str(cfg.identification)))
+    if identification is not None and not identification.exists():
+        raise ConfigError(f"identification = {cfg.identification}: no such file or directory; give a diffstir-fit "
+                          "report.json or its directory, or identification=null to fit the Newtonian law here")
     config = instantiate(cfg.sim)
     workers = config_workers(cfg)
-    if cfg.identification is None:
+    out = Run.writes(Path(to_absolute_path(str(cfg.out))))
+    if (out / "diagnosis.json").exists() and not cfg.overwrite:
+        raise OutputError(f"{out / 'diagnosis.json'}: a diagnosis is already there; give another out= or "
+                          "overwrite=true")
+    if identification is None:
         identification = identify(recording, ["newtonian"], config=config, density=cfg.density, baseline=False,
                                   window=cfg.window, holdout_fraction=0.0, max_iterations=cfg.identify_iterations,
                                   progress=cfg.progress, sensor_nuisance=(), size_estimate=False,
                                   workers=workers)
-    else:
-        identification = to_absolute_path(str(cfg.identification))
     result = diagnose(recording, identification, config=config, window=cfg.window, candidates=list(cfg.candidates),
                       max_iterations=int(cfg.max_iterations), rebuild_time=float(cfg.rebuild_time),
                       progress=bool(cfg.progress), workers=workers)

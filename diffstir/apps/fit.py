@@ -10,40 +10,50 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR, config_workers
+from diffstir.apps import CONF_DIR, Run, check_choice, check_choices, command, config_workers
 from diffstir.behaviour import characterise, write_behaviour_report
+from diffstir.behaviour.pipeline import SLOPE_TESTS
+from diffstir.errors import ConfigError, OutputError
 from diffstir.identify import identify
+from diffstir.identify.nuisance import NUISANCES
 from diffstir.identify.report import write_report
+from diffstir.identify.selection import CRITERIA
 from diffstir.mixing import analyse_mixing, write_mixing_report
 from diffstir.recording import load_recording
+from diffstir.rheology import LAWS
+
+OPTIMIZERS = ("lm", "adam")
 
 
-@hydra.main(config_path=CONF_DIR, config_name="fit", version_base="1.3")
+@command("diffstir-fit", "fit")
 def main(cfg: DictConfig) -> None:
     torch.set_num_threads(int(cfg.threads))
     if "behaviour" in cfg:
         return behaviour(cfg)
     if "mixing" in cfg:
         return mixing(cfg)
-    out = Path(to_absolute_path(str(cfg.out)))
-    out.mkdir(parents=True, exist_ok=True)
+    check_fit_settings(cfg)
     recording = load_recording(to_absolute_path(str(cfg.recording)))
+    config = instantiate(cfg.sim)
+    coarse = instantiate(cfg.coarse) if cfg.get("coarse") else None
+    rectifier = rectifier_path(str(cfg.rectifier.checkpoint)) if cfg.rectifier.checkpoint else None
+    out = Run.writes(Path(to_absolute_path(str(cfg.out))), "checkpoint.json")
+    if cfg.overwrite:
+        (out / "checkpoint.json").unlink(missing_ok=True)
     result = identify(
-        recording, list(cfg.model), config=instantiate(cfg.sim), density=cfg.density, baseline=cfg.baseline,
+        recording, list(cfg.model), config=config, density=cfg.density, baseline=cfg.baseline,
         window=cfg.fit.window, holdout_fraction=cfg.fit.holdout_fraction, max_iterations=cfg.fit.max_iterations,
         optimizer=cfg.fit.optimizer, selection=cfg.fit.selection, checkpoint=out / "checkpoint.json",
-        progress=cfg.progress, log_dir=out / "tensorboard",
-        coarse=instantiate(cfg.coarse) if cfg.get("coarse") else None, fine_iterations=cfg.fit.fine_iterations,
+        progress=cfg.progress, log_dir=out / "tensorboard", coarse=coarse, fine_iterations=cfg.fit.fine_iterations,
         sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
         workers=config_workers(cfg),
     )
-    if cfg.rectifier.checkpoint:
-        result.refined = refined_viscosity(result, str(cfg.rectifier.checkpoint))
+    if rectifier is not None:
+        result.refined = refined_viscosity(result, rectifier)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_report(result, out)
     av = result.apparent_viscosity(result.selection["selected"])
@@ -51,6 +61,26 @@ def main(cfg: DictConfig) -> None:
           f"{av['effective_shear_rate']:.3g} 1/s; wrote {paths['json']} and {paths['md']}")
     if cfg.diagnose:
         diagnose_if_poor(result, cfg, out)
+
+
+def check_fit_settings(cfg: DictConfig) -> None:
+    """Raise ConfigError for a setting the fit would refuse only after simulating: the laws, the optimizer, the
+    selection criterion, the sensor nuisances."""
+    check_choices("model", list(cfg.model), sorted(LAWS))
+    check_choice("fit.optimizer", cfg.fit.optimizer, OPTIMIZERS)
+    check_choice("fit.selection", cfg.fit.selection, CRITERIA)
+    check_choices("fit.sensor_nuisance", list(cfg.fit.sensor_nuisance), NUISANCES)
+    if cfg.fit.sensor_nuisance and cfg.fit.optimizer != "lm":
+        raise ConfigError(f"fit.sensor_nuisance = {list(cfg.fit.sensor_nuisance)} needs fit.optimizer = lm "
+                          f"(got {cfg.fit.optimizer!r})")
+    if cfg.fit.selection == "holdout" and not cfg.fit.holdout_fraction:
+        raise ConfigError("fit.selection = 'holdout' needs held-out samples; set fit.holdout_fraction > 0 (a "
+                          "fraction of the window, 1)")
+    if cfg.fit.holdout_fraction is not None and not 0.0 <= float(cfg.fit.holdout_fraction) < 1.0:
+        raise ConfigError(f"fit.holdout_fraction = {cfg.fit.holdout_fraction}; expected a fraction in [0, 1)")
+    if cfg.fit.window is not None and float(cfg.fit.window) <= 0.0:
+        raise ConfigError(f"fit.window = {cfg.fit.window} s; expected a positive duration in s, or null (all of "
+                          "the recording)")
 
 
 def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
@@ -70,24 +100,41 @@ def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
     print(f"diagnosis: {diag.verdict}; wrote {paths['json']}\n{diag.sentence}")
 
 
-def refined_viscosity(result, checkpoint: str) -> dict:
-    """The rectifier's refinement of ``result``'s preliminary viscosity (docs/rectifier.md)."""
-    from diffstir.rectifier.apply import load_rectifier, refine
-
+def rectifier_path(checkpoint: str) -> Path:
+    """The rectifier checkpoint ``rectifier.checkpoint`` names: a relative path from the working directory, then
+    from the diffstir checkout; ConfigError where neither exists."""
     path = Path(to_absolute_path(checkpoint))
     if not path.exists() and not Path(checkpoint).is_absolute():
         path = Path(CONF_DIR).parent / checkpoint
+    if not path.exists():
+        raise ConfigError(f"rectifier.checkpoint = {checkpoint}: no such file; give a rectifier.ckpt "
+                          "(docs/rectifier.md) or rectifier.checkpoint=null for no refinement")
+    return path
+
+
+def refined_viscosity(result, path: Path) -> dict:
+    """The rectifier's refinement of ``result``'s preliminary viscosity (docs/rectifier.md)."""
+    from diffstir.rectifier.apply import load_rectifier, refine
+
     rectifier, metadata = load_rectifier(path)
     return refine(rectifier, metadata, result.preliminary, result.density["value"], str(path))
 
 
 def behaviour(cfg: DictConfig) -> None:
     """``experiment=behaviour``: classify the fluid of ``recordings`` (docs/behaviour.md)."""
-    out = Path(to_absolute_path(str(cfg.out)))
-    out.mkdir(parents=True, exist_ok=True)
     b = cfg.behaviour
-    result = characterise([load_recording(to_absolute_path(str(r))) for r in cfg.recordings],
-                          config=instantiate(cfg.sim), density=cfg.density, iterations=b.iterations,
+    check_choices("behaviour.joint_models", list(b.joint_models), sorted(LAWS))
+    check_choice("behaviour.slope_test", b.slope_test, SLOPE_TESTS)
+    if b.slope_test == "joint_index" and "power_law" not in b.joint_models:
+        raise ConfigError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law "
+                          f"to behaviour.joint_models (got {list(b.joint_models)})")
+    if not cfg.recordings:
+        raise ConfigError("recordings = []; give recordings=[a,b,...], recording directories of one fluid")
+    recordings = [load_recording(to_absolute_path(str(r))) for r in cfg.recordings]
+    config = instantiate(cfg.sim)
+    out = Run.writes(Path(to_absolute_path(str(cfg.out))))
+    refuse_existing(out, "report.json", cfg.overwrite)
+    result = characterise(recordings, config=config, density=cfg.density, iterations=b.iterations,
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, pause_speed=b.pause_speed,
                           replicates=b.replicates, seed=b.seed, model_error=b.model_error,
@@ -102,13 +149,19 @@ def behaviour(cfg: DictConfig) -> None:
 def mixing(cfg: DictConfig) -> None:
     """``experiment=mixing``: the viscosity's time course of one recording of a blend (docs/mixing.md)."""
     if len(cfg.recordings) != 1:
-        raise ValueError(f"recordings = {list(cfg.recordings)}; experiment=mixing analyses one recording")
-    out = Path(to_absolute_path(str(cfg.out)))
-    out.mkdir(parents=True, exist_ok=True)
+        raise ConfigError(f"recordings = {list(cfg.recordings)}; experiment=mixing analyses one recording")
     m = cfg.mixing
-    result = analyse_mixing(load_recording(to_absolute_path(str(cfg.recordings[0]))), config=instantiate(cfg.sim),
-                            viscosities=tuple(m.viscosities), fraction=m.fraction, window=m.window,
-                            density=cfg.density, iterations=m.iterations, model_error=m.model_error)
+    if len(m.viscosities) != 2 or min(m.viscosities) <= 0:
+        raise ConfigError(f"mixing.viscosities = {list(m.viscosities)}; expected [eta1, eta2] in Pa·s, both "
+                          "positive, the more viscous first")
+    if not 0.0 < float(m.fraction) < 1.0:
+        raise ConfigError(f"mixing.fraction = {m.fraction}; expected fluid 1's volume fraction in (0, 1)")
+    recording = load_recording(to_absolute_path(str(cfg.recordings[0])))
+    config = instantiate(cfg.sim)
+    out = Run.writes(Path(to_absolute_path(str(cfg.out))))
+    refuse_existing(out, "report.json", cfg.overwrite)
+    result = analyse_mixing(recording, config=config, viscosities=tuple(m.viscosities), fraction=m.fraction,
+                            window=m.window, density=cfg.density, iterations=m.iterations, model_error=m.model_error)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_mixing_report(result, out)
     a = result.approach
@@ -116,6 +169,12 @@ def mixing(cfg: DictConfig) -> None:
     interval = f" (95 % CI {ci[0]:.3g}-{ci[1]:.3g} s)" if ci else ""
     print(f"blend {a.plateau:.4g} Pa·s (95 % CI {a.plateau_ci95[0]:.4g}-{a.plateau_ci95[1]:.4g}), homogeneous after "
           f"{a.homogeneity_time:.3g} s{interval}; wrote {paths['json']}")
+
+
+def refuse_existing(out: Path, report: str, overwrite: bool) -> None:
+    """Raise OutputError where ``out`` holds ``report`` already and ``overwrite`` is false."""
+    if (out / report).exists() and not overwrite:
+        raise OutputError(f"{out / report}: a report is already there; give another out= or overwrite=true")
 
 
 if __name__ == "__main__":

@@ -8,16 +8,15 @@ from __future__ import annotations
 
 import sys
 
-import hydra
 import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import command
 from diffstir.rectifier.pairs import collect, design_from_mapping, run_shard
 
 
-@hydra.main(config_path=CONF_DIR, config_name="pairs", version_base="1.3")
+@command("diffstir-pairs", "pairs")
 def main(cfg: DictConfig) -> None:
     torch.set_num_threads(int(cfg.threads))
     design = design_from_mapping(OmegaConf.to_container(cfg.pairs.design, resolve=True))

@@ -6,24 +6,23 @@
     diffstir-record hardware/adc=emulated hardware/arm=replay hardware/gripper=emulated \\
         density.rod_weight=0.5 density.immersed_reading=0.11 out=/tmp/runs stir.duration=3
 
-Configs: conf/record.yaml and conf/hardware/{adc,arm,gripper}/. Exit status: 0 done, 1 error, 130 interrupted.
+Configs: conf/record.yaml and conf/hardware/{adc,arm,gripper}/. Exit status: 0 done, 1 a device's error, 2 a setting
+refused, 130 / 143 interrupted (SIGINT / SIGTERM; everything recorded so far is kept, partial recordings marked
+complete: false).
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import signal
 import sys
 
-import hydra
 import numpy as np
-from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import Run, command
+from diffstir.errors import ConfigError, DiffstirError
 from diffstir.hardware import HardwareError, Session, load_calibration, load_trajectory
 from diffstir.recording import CupGeometry, RodGeometry, SensorSpec
 from diffstir.trajectory import Trajectory, circle
@@ -60,7 +59,7 @@ def _density(cfg: DictConfig, depth: float, interactive: bool) -> dict | None:
         values["immersed_depth"] = depth
     missing = [k for k in DENSITY_FIELDS if values[k] is None]
     if missing and not interactive:
-        raise ValueError("density: " + ", ".join(f"density.{k} ({DENSITY_FIELDS[k]})" for k in missing)
+        raise ConfigError("density: " + ", ".join(f"density.{k} ({DENSITY_FIELDS[k]})" for k in missing)
                          + " not set; give them, or density.skip=true, or interactive=true to be asked")
     return values
 
@@ -80,7 +79,7 @@ def record(cfg: DictConfig) -> Session:
     density = _density(cfg.density, cfg.rig.rod.immersion_depth, interactive)
     rig = instantiate(cfg.rig)
     if rig.rod.mesh is not None:
-        raise ValueError("rig.rod.mesh: a recording's rod is a cylinder; record with rig.rod.mesh=null")
+        raise ConfigError("rig.rod.mesh: a recording's rod is a cylinder; record with rig.rod.mesh=null")
     stir = _programme(cfg.stir)
     dry = _dry_programme(stir, cfg.dry_run.mode, cfg.dry_run.duration, cfg.dry_run.lift)
 
@@ -97,7 +96,7 @@ def record(cfg: DictConfig) -> Session:
                    if cfg.hardware.gripper._target_ else None)
         calibration = load_calibration(cfg.calibration) if cfg.calibration else getattr(adc, "calibration", None)
         if calibration is None:
-            raise ValueError("no force calibration: set calibration=<file> (docs/hardware.md, 'Calibration')")
+            raise ConfigError("no force calibration: set calibration=<file> (docs/hardware.md, 'Calibration')")
         session = Session(
             cfg.out, adc=adc, arm=arm, calibration=calibration, gripper=gripper, name=cfg.name, resume=cfg.resume,
             cup=CupGeometry(rig.cup.radius, fill_height=rig.cup.fill_height),
@@ -105,6 +104,7 @@ def record(cfg: DictConfig) -> Session:
             sensor=SensorSpec(**{**cfg.sensor, "axis": tuple(cfg.sensor.axis) if cfg.sensor.axis else None}),
             fluid=cfg.fluid, temperature=cfg.temperature, flush_interval=cfg.flush_interval, latency=cfg.latency,
             config=OmegaConf.to_container(cfg, resolve=True))
+        Run.writes(session.path)
         print(f"session {session.path}", flush=True)
         with session:
             if gripper is not None:
@@ -123,25 +123,15 @@ def record(cfg: DictConfig) -> Session:
     return session
 
 
-def _terminate(signum, frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-@hydra.main(config_path=CONF_DIR, config_name="record", version_base="1.3")
+@command("diffstir-record", "record")
 def main(cfg: DictConfig) -> None:
     """Console entry point ``diffstir-record``."""
-    signal.signal(signal.SIGTERM, _terminate)
-    # a shell starting a job in the background hands it SIGINT ignored; a recorder must stop on it all the same
-    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         session = record(cfg)
-    except KeyboardInterrupt:
-        print("diffstir-record: interrupted; everything recorded so far is kept (partial recordings are marked "
-              "complete: false)", file=sys.stderr)
-        sys.exit(130)
-    except (HardwareError, ValueError, OSError, InstantiationException, OmegaConfBaseException) as exc:
-        cause = exc.__cause__ if isinstance(exc, InstantiationException) and exc.__cause__ else exc
-        print(f"diffstir-record: {cause}", file=sys.stderr)
+    except DiffstirError:
+        raise
+    except (HardwareError, ValueError, OSError) as exc:
+        print(f"diffstir-record: {exc}", file=sys.stderr)
         sys.exit(1)
     steps = session.meta["steps"]
     print(f"done: {session.path}: {steps['stir'].get('rows', 0)} rows, "

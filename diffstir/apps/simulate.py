@@ -7,22 +7,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
-from hydra.utils import instantiate
+from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import Run, command
+from diffstir.errors import ConfigError
 from diffstir.mpm import StirringSimulator
 from diffstir.plots import plot_forces
 from diffstir.trajectory import circle
 
 
-@hydra.main(config_path=CONF_DIR, config_name="simulate", version_base="1.3")
+@command("diffstir-simulate", "simulate")
 def main(cfg: DictConfig) -> None:
-    out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
     rig, sim_config, law = instantiate(cfg.rig), instantiate(cfg.sim), instantiate(cfg.law)
-    trajectory = circle(cfg.stir.radius, cfg.stir.speed, cfg.stir.duration, ramp_time=cfg.stir.ramp_time)
+    try:
+        trajectory = circle(cfg.stir.radius, cfg.stir.speed, cfg.stir.duration, ramp_time=cfg.stir.ramp_time)
+    except ValueError as error:
+        raise ConfigError(f"stir: {error}") from None
+    out = Run.writes(Path(to_absolute_path(str(cfg.out))))
     simulator = StirringSimulator(law, rig, sim_config, density=cfg.density)
     result = simulator(trajectory)
     csv, png = plot_forces(result, law, out)

@@ -9,19 +9,19 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
+from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import Run, command
+from diffstir.errors import OutputError
 from diffstir.lab import (
-    Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, synthesise_blend,
+    Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, synthesise_blend, truth_path,
     write_lab_recording,
 )
 
 
-@hydra.main(config_path=CONF_DIR, config_name="synth", version_base="1.3")
+@command("diffstir-synth", "synth")
 def main(cfg: DictConfig) -> None:
     lab = OmegaConf.to_container(cfg.lab, resolve=True)
     rig, sim_config = instantiate(cfg.rig), instantiate(cfg.lab.sim)
@@ -30,18 +30,22 @@ def main(cfg: DictConfig) -> None:
     trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
                                     ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
     choices = HydraConfig.get().runtime.choices
+    name = cfg.name or choices["lab/blend" if lab.get("blend") else "lab/fluid"]
+    path = Path(to_absolute_path(str(cfg.out))) / name
+    for existing in (path, truth_path(path)):
+        if existing.exists() and not cfg.overwrite:
+            raise OutputError(f"{existing}: already exists; give another name= or out=, or overwrite=true")
     started = time.perf_counter()
     sensor = SensorModel(**lab["sensor"])
     if lab.get("blend"):
-        name = cfg.name or choices["lab/blend"]
         result = synthesise_blend(_blend(lab["blend"]), trajectory, rig=rig, sim_config=sim_config, sensor=sensor,
                                   seed=int(cfg.seed), name=name, label=cfg.label, programme=programme)
     else:
-        name = cfg.name or choices["lab/fluid"]
         result = synthesise(fluid, trajectory, rig=rig, sim_config=sim_config, sensor=sensor,
                             physics=HiddenPhysicsSpec.from_mapping(lab["physics"]), seed=int(cfg.seed), name=name,
                             label=cfg.label, programme=programme)
-    recording, truth = write_lab_recording(result, Path(cfg.out) / name, overwrite=bool(cfg.overwrite))
+    Run.writes(path.parent)
+    recording, truth = write_lab_recording(result, path, overwrite=bool(cfg.overwrite))
     print(f"{result.truth['simulator']['steps']} steps of {result.truth['simulator']['dt']:.3g} s in "
           f"{time.perf_counter() - started:.0f} s; wrote {recording} ({result.recording.t.size} rows) and {truth}")
 

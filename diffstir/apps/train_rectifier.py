@@ -1,7 +1,9 @@
 """diffstir-train-rectifier: train the rectifier on a pairs file; write the Lightning checkpoint and a card with
 the exact command, the data's SHA-256 and the metrics on held-out fluids.
 
-    diffstir-train-rectifier data=checkpoints/rectifier/pairs.jsonl out=checkpoints/rectifier
+    diffstir-train-rectifier                                   # into outputs/rectifier/<date>
+    diffstir-train-rectifier data=outputs/pairs/pairs.jsonl out=outputs/rectifier-new
+    diffstir-train-rectifier out=checkpoints/rectifier overwrite=true   # replace the shipped rectifier
 """
 
 from __future__ import annotations
@@ -14,29 +16,37 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-import hydra
 import lightning as L
 import torch
 from hydra.utils import to_absolute_path
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR
+from diffstir.apps import Run, command
+from diffstir.errors import ConfigError, OutputError
 from diffstir.rectifier.training import PairData, evaluate, train
 
 
-@hydra.main(config_path=CONF_DIR, config_name="rectifier", version_base="1.3")
+OUTPUTS = ("rectifier.ckpt", "card.json")
+
+
+@command("diffstir-train-rectifier", "rectifier")
 def main(cfg: DictConfig) -> None:
     torch.set_num_threads(int(cfg.threads))
-    L.seed_everything(int(cfg.train.seed), workers=True)
     data_path, out = Path(to_absolute_path(str(cfg.data))), Path(to_absolute_path(str(cfg.out)))
-    out.mkdir(parents=True, exist_ok=True)
+    if not data_path.is_file():
+        raise ConfigError(f"data = {cfg.data}: no such file; give a pairs file (diffstir-pairs collect=true)")
+    existing = [str(out / name) for name in OUTPUTS if (out / name).exists()]
+    if existing and not cfg.overwrite:
+        raise OutputError(f"{', '.join(existing)}: a trained rectifier is already there; give another out= or "
+                          "overwrite=true")
+    L.seed_everything(int(cfg.train.seed), workers=True)
     data = PairData(data_path, list(cfg.model.inputs), val_fraction=cfg.split.val_fraction,
                     test_fraction=cfg.split.test_fraction, batch_size=int(cfg.train.batch_size),
                     seed=int(cfg.split.seed))
     estimators = {json.dumps(p["estimator_config"], sort_keys=True) for p in data.all_pairs}
     if len(estimators) != 1:
-        sys.exit(f"{data_path}: pairs from {len(estimators)} estimator resolutions; train on one")
+        raise ConfigError(f"{data_path}: pairs from {len(estimators)} estimator resolutions; train on one")
     manifest_path = data_path.parent / "manifest.json"
     metadata = {
         "data": str(cfg.data), "data_sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
@@ -47,6 +57,7 @@ def main(cfg: DictConfig) -> None:
     if metadata["manifest"] is not None:
         metadata["manifest"] = {k: metadata["manifest"][k] for k in
                                 ("design_digest", "pairs", "fluids", "complete", "sha256")}
+    Run.writes(out)
     started = time.perf_counter()
     module, trainer = train(data, hidden=list(cfg.model.hidden), activation=cfg.model.activation,
                             residual=bool(cfg.model.residual),

@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import time
 import traceback
 from collections.abc import Mapping
@@ -419,7 +420,7 @@ def collect(design: PairDesign, out: str | Path) -> dict:
         lines += records
     lines.sort(key=lambda r: r["pair_id"])
     text = "".join(json.dumps(r, sort_keys=True) + "\n" for r in lines)
-    (out / "pairs.jsonl").write_text(text, encoding="utf-8")
+    _write_atomically(out / "pairs.jsonl", text)
     truth_seconds = {r["fluid_id"]: r["truth_seconds"] for r in lines}
     manifest = {
         "format": PAIRS_FORMAT, "design": _plain(asdict(design)), "design_digest": design.digest(),
@@ -431,8 +432,22 @@ def collect(design: PairDesign, out: str | Path) -> dict:
                                    for s in range(design.shards) if ShardPaths.of(out, s).group.exists()),
         "shards": shards,
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    _write_atomically(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
     return manifest
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` by ``text`` (UTF-8) in one step: a temporary file in the same folder, fsync, os.replace; a
+    failed write leaves the old file as it was."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as file:
+            file.write(text)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def design_from_mapping(cfg: Mapping) -> PairDesign:

@@ -1,0 +1,160 @@
+"""The command-line apps as their users run them, through their console scripts: a refused setting, recording or
+output folder in one line with exit status 2 and nothing written; help pages; what is never overwritten."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "diffstir" / "data" / "examples" / "carreau_example"
+APPS = ["diffstir-fit", "diffstir-diagnose", "diffstir-simulate", "diffstir-synth", "diffstir-record",
+        "diffstir-pairs", "diffstir-train-rectifier"]
+
+
+def run(app: str, *args: str, cwd: Path, env: dict | None = None, timeout: float = 120.0):
+    """``app args`` run in ``cwd`` as a user runs it; the finished process."""
+    return subprocess.run([shutil.which(app), *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, **(env or {})})
+
+
+def assert_refused(done, app: str, message: str) -> None:
+    """Exit status 2 and one line on stderr, ``<app>: error: <message...>``, no traceback."""
+    assert done.returncode == 2, done.stderr[-3000:]
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"{app}: error: {message}"), done.stderr[-3000:]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["fit.optimizer=sgd"], "fit.optimizer = 'sgd'; choose from lm, adam"),
+    (["fit.selection=aic"], "fit.selection = 'aic'; choose from bic, holdout, loss"),
+    (["model=[newtonian,casson]"], "model: unknown casson; choose from"),
+    (["fit.sensor_nuisance=[drift]"], "fit.sensor_nuisance: unknown drift; choose from offset, lag"),
+    (["fit.sensor_nuisance=[lag]", "fit.optimizer=adam"], "fit.sensor_nuisance = ['lag'] needs fit.optimizer = lm"),
+    (["fit.selection=holdout", "fit.holdout_fraction=0"], "fit.selection = 'holdout' needs held-out samples"),
+    (["rectifier.checkpoint=missing.ckpt"], "rectifier.checkpoint = missing.ckpt: no such file"),
+])
+def test_a_wrong_fit_setting_is_refused_in_one_line_before_any_simulation_and_writes_nothing(tmp_path, args,
+                                                                                               message):
+    done = run("diffstir-fit", f"recording={EXAMPLE}", *args, cwd=tmp_path)
+    assert_refused(done, "diffstir-fit", message)
+    assert not any(tmp_path.iterdir())  # no outputs/ folder, no Hydra run folder, no log
+
+
+def test_a_refused_run_makes_no_output_folder_where_out_is_given(tmp_path):
+    done = run("diffstir-fit", f"recording={EXAMPLE}", f"out={tmp_path / 'a' / 'b'}", "fit.optimizer=sgd",
+               cwd=tmp_path)
+    assert_refused(done, "diffstir-fit", "fit.optimizer")
+    assert not any(tmp_path.iterdir())
+
+
+def test_experiment_settings_missing_values_and_other_apps_are_refused_in_one_line(tmp_path):
+    assert_refused(run("diffstir-fit", "experiment=mixing", f"recordings=[{EXAMPLE},{EXAMPLE}]",
+                       "mixing.viscosities=[1.0,0.1]", "mixing.fraction=0.5", cwd=tmp_path),
+                   "diffstir-fit", "recordings = [")
+    assert_refused(run("diffstir-fit", "experiment=behaviour", f"recordings=[{EXAMPLE}]", "behaviour.slope_test=t",
+                       cwd=tmp_path), "diffstir-fit", "behaviour.slope_test = 't'; choose from combined")
+    assert_refused(run("diffstir-fit", cwd=tmp_path), "diffstir-fit", "Missing mandatory value: recording")
+    assert_refused(run("diffstir-diagnose", f"recording={EXAMPLE}", "candidates=[sensor_lag,gremlins]",
+                       cwd=tmp_path), "diffstir-diagnose", "candidates: unknown gremlins; choose from sensor_lag")
+    assert_refused(run("diffstir-simulate", "stir.radius=-0.01", f"out={tmp_path / 'sim'}", cwd=tmp_path),
+                   "diffstir-simulate", "stir: circle: radius = -0.01 m")
+    assert not any(tmp_path.iterdir())
+
+
+def test_hydra_full_error_shows_the_traceback(tmp_path):
+    done = run("diffstir-fit", f"recording={EXAMPLE}", "fit.optimizer=sgd", cwd=tmp_path,
+               env={"HYDRA_FULL_ERROR": "1"})
+    assert done.returncode != 0 and "Traceback" in done.stderr and "ConfigError" in done.stderr
+
+
+def test_the_fits_default_output_folder_is_keyed_by_the_recording(tmp_path):
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from diffstir.apps import CONF_DIR, run_folder
+    from diffstir.recording import load_recording
+    from diffstir.recording.digest import recording_digest
+
+    copy = shutil.copytree(EXAMPLE, tmp_path / "carreau_example")
+    if not OmegaConf.has_resolver("run_folder"):
+        OmegaConf.register_new_resolver("run_folder", run_folder)
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        a, b = (compose("fit", overrides=[f"recording={path}"]) for path in (EXAMPLE, copy))
+    digest = recording_digest(load_recording(EXAMPLE))[:8]
+    assert a.out == b.out == f"outputs/fit/carreau_example-{digest}"  # the same content, the same folder
+    (copy / "stir.csv").write_text((copy / "stir.csv").read_text().replace("0.0", "0.00", 1))
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        changed = compose("fit", overrides=[f"recording={copy}"])
+    assert changed.out != a.out and changed.overwrite is False
+
+
+@pytest.mark.parametrize("app", APPS)
+def test_each_app_has_its_own_help_page(tmp_path, app):
+    done = run(app, "--help", cwd=tmp_path)
+    assert done.returncode == 0 and not any(tmp_path.iterdir())
+    page = done.stdout
+    assert page.startswith(f"usage: {app} ") and "is powered by Hydra" not in page
+    assert "Exit status: 0 done; 2 " in page
+    groups = page.split("Config groups (group=option):")[-1]
+    own = {"diffstir-fit": ["optimizer: lm", "# lm | adam", "diffstir-fit experiment=behaviour"],
+           "diffstir-diagnose": ["candidates:", "identify_iterations:"],
+           "diffstir-simulate": ["stir:", "law"], "diffstir-synth": ["overwrite: false", "lab/fluid: "],
+           "diffstir-record": ["hardware/adc: emulated", "flush_interval:"],
+           "diffstir-pairs": ["collect: false", "shard:"],
+           "diffstir-train-rectifier": ["overwrite: false", "out: outputs/rectifier/"]}[app]
+    assert all(text in page for text in own), page
+    if app != "diffstir-record":
+        assert "hardware" not in groups and "arm:" not in groups
+    if app not in ("diffstir-synth", "diffstir-pairs"):
+        assert "lab/" not in groups
+
+
+def test_the_trainer_writes_under_outputs_by_default_and_never_over_a_rectifier_unless_told(tmp_path):
+    from omegaconf import OmegaConf
+
+    assert OmegaConf.load(ROOT / "conf" / "rectifier.yaml").out.startswith("outputs/rectifier/")
+    out = tmp_path / "rectifier"
+    out.mkdir()
+    (out / "card.json").write_text('{"shipped": true}\n')
+    done = run("diffstir-train-rectifier", f"out={out}", f"data={ROOT / 'checkpoints/rectifier/pairs.jsonl.gz'}",
+               cwd=tmp_path)
+    assert_refused(done, "diffstir-train-rectifier", f"{out / 'card.json'}: a trained rectifier is already there")
+    assert json.loads((out / "card.json").read_text()) == {"shipped": True} and not (out / "tensorboard").exists()
+
+
+def test_synth_refuses_an_existing_recording_before_simulating(tmp_path):
+    existing = tmp_path / "lab" / "carreau_example"
+    existing.mkdir(parents=True)
+    (existing / "recording.yaml").write_text("kept: true\n")
+    # a fine truth simulation would take minutes: a refusal within the timeout comes before it
+    done = run("diffstir-synth", f"out={tmp_path / 'lab'}", "lab.sim.dx=0.002", cwd=tmp_path, timeout=60.0)
+    assert_refused(done, "diffstir-synth", f"{existing}: already exists")
+    assert (existing / "recording.yaml").read_text() == "kept: true\n"
+    assert sorted(p.name for p in (tmp_path / "lab").iterdir()) == ["carreau_example"]
+
+
+def test_collect_replaces_the_pairs_file_in_one_step(tmp_path, monkeypatch):
+    from omegaconf import OmegaConf
+
+    from diffstir.rectifier import pairs
+
+    design = pairs.design_from_mapping(OmegaConf.to_container(OmegaConf.load(ROOT / "conf/pairs/design/paper.yaml")))
+    (tmp_path / "pairs.jsonl").write_text("old\n")
+
+    def disk_full(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pairs.os, "fsync", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        pairs.collect(design, tmp_path)
+    assert (tmp_path / "pairs.jsonl").read_text() == "old\n"  # the old file whole, no temporary file left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pairs.jsonl"]
+    monkeypatch.undo()
+    manifest = pairs.collect(design, tmp_path)
+    assert (tmp_path / "pairs.jsonl").read_text() == "" and manifest["pairs"] == 0
