@@ -119,7 +119,7 @@ def newtonian_part(args) -> list[dict]:
                           fine_iterations=args.fine_iterations, progress=False,
                           sensor_nuisance=args.sensor_nuisance, model_error=model_error)
         law = result.summary()["laws"]["newtonian"]
-        fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"]
+        fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"] or (None, None)  # null: not identifiable
         rho, size = result.density, result.magnitude
         row = {"size": {"eta": size["viscosity"], "ci95": size["ci95"], "error": size["viscosity"] / eta - 1.0,
                         "covered": holds(*size["ci95"], eta), "resolved": size["resolved"],

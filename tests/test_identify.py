@@ -2,12 +2,15 @@
 
 import json
 import math
+import re
+import shutil
 from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
+from diffstir.errors import OutputError
 from diffstir.identify import FitModel, identify
 from diffstir.identify.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
                                       newtonian_embedding)
@@ -20,6 +23,7 @@ from diffstir.identify.nuisance import lag_response
 from diffstir.lab import SensorModel
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, sensor_reading_np,
                                 trajectory_at)
+from diffstir.recording.digest import recording_digest
 from diffstir.rheology import Carreau, Newtonian
 from diffstir.trajectory import Trajectory, circle, through_samples
 
@@ -467,9 +471,33 @@ def test_resume_does_not_refit_finished_models(newtonian_identification, newtoni
                      holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=out / "checkpoint.json")
     assert calls == []
     assert again.fits["power_law"].model.params_si() == pytest.approx(result.fits["power_law"].model.params_si())
-    with pytest.raises(ValueError, match="max_iterations"):
+    with pytest.raises(OutputError, match="checkpoint.json: the checkpoint was written with other settings "
+                                          "\\(max_iterations\\); use another out= or overwrite=true"):
         identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
                  holdout_fraction=0.25, max_iterations=3, progress=False, checkpoint=out / "checkpoint.json")
+
+
+def test_a_checkpoint_of_another_recording_is_refused_unless_overwritten(newtonian_identification,
+                                                                          newtonian_recording, tmp_path):
+    """A folder holding the finished fit of recording A, given recording B (twice the force): B is refused in one
+    line naming A's checkpoint, or fitted afresh with ``overwrite``, never answered with A's viscosity."""
+    _, out = newtonian_identification
+    checkpoint = tmp_path / "checkpoint.json"
+    shutil.copy(out / "checkpoint.json", checkpoint)
+    doubled = replace(newtonian_recording, force=2.0 * newtonian_recording.force, name="doubled")
+    assert recording_digest(doubled) != recording_digest(newtonian_recording)
+    assert recording_digest(replace(newtonian_recording, name="renamed")) == recording_digest(newtonian_recording)
+    with pytest.raises(OutputError, match=f"^{re.escape(str(checkpoint))} holds a fit of recording synthetic "
+                                          "\\(sha256 [0-9a-f]{12}…\\), not of doubled .*; use another out= or "
+                                          "overwrite=true$"):
+        identify(doubled, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
+                 holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=checkpoint)
+    fresh = identify(doubled, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
+                     holdout_fraction=0.0, max_iterations=3, progress=False, size_estimate=False,
+                     checkpoint=checkpoint, overwrite=True)
+    # a viscous drag doubles with η; the 2-D slice's is not exactly linear in η, so only "far from A's" is asserted
+    assert fresh.fits["newtonian"].model.params_si()["eta"] > 1.5 * TRUE_ETA
+    assert json.loads(checkpoint.read_text())["settings"]["recording"] == recording_digest(doubled)
 
 
 def test_report_files(newtonian_identification):
@@ -490,6 +518,26 @@ def test_report_files(newtonian_identification):
     assert report["magnitude"]["resolved"] and "from the reading's size" in paths["md"].read_text()
     assert all(paths[k].stat().st_size > 0 for k in ("forces", "flow_curves", "losses"))
     assert any((out / "tb").iterdir())
+
+
+def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_identification):
+    """A covariance singular in one direction (the power law's two columns nearly collinear, 1e-7 apart) gives
+    intervals such as [4e-284, 1e+277]: the report gives null with identifiable false and says so in words."""
+    from diffstir.identify.report import markdown
+
+    result, _ = newtonian_identification
+    fit, train = result.fits["power_law"], result.problem.train
+    jacobian = fit.jacobian[train].copy()
+    jacobian[:, 1] = jacobian[:, 0] * (1.0 + 1e-7 * np.linspace(-1.0, 1.0, jacobian.shape[0]))
+    residuals = (fit.predicted - result.problem.measured)[train]
+    unc = laplace(fit.model, fit.theta, jacobian, residuals)
+    assert not any(unc.identifiable.values()) and np.isfinite(unc.covariance).all()
+    summary = replace(result, uncertainty={**result.uncertainty, "power_law": unc}).summary()
+    law = summary["laws"]["power_law"]
+    assert law["ci95"] == {"k": None, "n": None} and law["identifiable"] == {"k": False, "n": False}
+    assert summary["laws"]["newtonian"]["ci95"]["eta"] is not None  # an identified one keeps its interval
+    row = next(line for line in markdown(summary).splitlines() if line.startswith("| power_law |"))
+    assert row.count("not identifiable") == 2 and "[" not in row
 
 
 @pytest.fixture(scope="module")

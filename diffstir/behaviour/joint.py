@@ -85,8 +85,9 @@ LIQUID_START_ITERATIONS = 1
 
 
 class JointProblem:
-    """The windows of several recordings as one problem for ``identify.fit_model``: one simulation per recording,
-    from its first sample to its last window's end, whose readings inside the windows are concatenated.
+    """The windows of several recordings as one problem for ``identify.fit_model`` (an ``identify.FitProblem``):
+    one simulation per recording, from its first sample to its last window's end, whose readings inside the windows
+    are concatenated.
 
     Each window's residuals count in units of their own scale s_w [N] (``window_scales``; default: all alike):
     the fit minimises Σ_w Σ_i (r_i / s_w)² (robustly), a Gaussian likelihood with a variance per window known up
@@ -99,6 +100,7 @@ class JointProblem:
     Attributes:
         problems: one ``StirProblem`` per recording; ``masks`` its samples inside a window.
         measured: measured readings in the windows [N]; ``train`` all True (nothing is held out).
+        times: their times [s], each on its own recording's clock, recording after recording.
         weights: each sample's weight min_w s_w / s_w [1] (at most 1: the best-fitted window's residuals stay in
             newtons, so the robust cost's noise floor keeps its meaning).
         window_labels: each sample's window, its place in ``windows``.
@@ -129,6 +131,7 @@ class JointProblem:
             labels.append(np.asarray(group)[inside.argmax(axis=0)][mask])
         self.recording = self.problems[0].recording
         self.measured = np.concatenate([p.measured[m] for p, m in zip(self.problems, self.masks)])
+        self.times = np.concatenate([p.times[m] for p, m in zip(self.problems, self.masks)])
         self.train = np.ones(self.measured.size, dtype=bool)
         self.weights = scales.min() / np.concatenate(sample_scales)
         self.window_labels = np.concatenate(labels)

@@ -36,8 +36,9 @@ from typing import Callable
 
 import numpy as np
 import torch
-from torch import nn
+from torch import Tensor, nn
 
+from ..identify import StirProblem
 from ..identify.initial import initial_model
 from ..identify.models import FitModel
 from ..identify.nuisance import lag_response
@@ -313,18 +314,25 @@ class PhysicsModel(Parametrisation):
 class CachedReplay:
     """A ``StirProblem`` whose simulations follow a candidate model (its material and the rod's slip length) and
     are cached by the model's θ, so that the finite-difference Jacobian taken before a fit and the fit itself
-    never simulate the same θ twice. Exposes what ``fit_model`` and ``Readings`` read of a problem."""
+    never simulate the same θ twice. It is a ``identify.FitProblem``; ``simulations`` counts its simulations."""
 
-    def __init__(self, problem, model):
-        self.problem, self.model, self.cache, self.simulations = problem, model, {}, 0
+    def __init__(self, problem: StirProblem, model, simulations: int = 0):
+        self.problem, self.model, self.cache, self.simulations = problem, model, {}, simulations
         self.train, self.measured, self.recording = problem.train, problem.measured, problem.recording
-        self.weights = problem.weights
+        self.times, self.weights = problem.times, problem.weights
         self.config, self.density = problem.config, problem.density
 
     def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
         return self.problem.loss(predicted, train)
 
-    def simulate(self, material: nn.Module):
+    def frozen(self, material: nn.Module) -> "CachedReplay":
+        """This replay, where its problem's sound speed is held already; else a replay of the problem frozen at
+        ``material``'s sound speed (``StirProblem.frozen``), with an empty cache (its readings at a θ differ from
+        this one's) and this one's count of simulations."""
+        frozen = self.problem.frozen(material)
+        return self if frozen is self.problem else CachedReplay(frozen, self.model, self.simulations)
+
+    def simulate(self, material: nn.Module) -> Tensor:
         key = np.asarray(self.model.theta(), dtype=np.float64).tobytes()
         if key not in self.cache:
             problem = self.problem

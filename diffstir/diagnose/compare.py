@@ -49,6 +49,7 @@ import numpy as np
 from scipy import optimize
 
 from ..identify.optimise import Readings, fit_model
+from ..identify.pipeline import interval_summary
 from ..identify.selection import bic, bic_of_rss
 from ..identify.uncertainty import effective_samples, laplace
 from ..parallel import Workers
@@ -83,7 +84,9 @@ class CandidateFit:
     Attributes:
         name, kind: the candidate (``sensor``, ``physics``) .
         summary: what it models, in words.
-        params, units, ci95: fitted values (SI), units, 95 % intervals.
+        params, units, ci95: fitted values (SI), units, 95 % intervals (null for a parameter the recording does
+            not determine, ``identify.pipeline.interval_summary``); identifiable: whether the recording
+            determines each parameter (``identify.uncertainty``).
         law: the fluid's law after the fit (name and SI parameters).
         predicted: readings [N] at the compared samples.
         loss: mean |measured − predicted| [N]; rss: Σ (measured − predicted)² [N²].
@@ -103,6 +106,7 @@ class CandidateFit:
     params: dict = field(default_factory=dict)
     units: dict = field(default_factory=dict)
     ci95: dict = field(default_factory=dict)
+    identifiable: dict = field(default_factory=dict)
     law: dict = field(default_factory=dict)
     predicted: np.ndarray | None = None
     loss: float = math.nan
@@ -126,8 +130,7 @@ def _law_after(law, values: dict) -> dict:
 def _finish(fit: CandidateFit, model, theta: np.ndarray, jacobian: np.ndarray, ctx: Context) -> CandidateFit:
     residual = ctx.measured - fit.predicted
     unc = laplace(model, theta, jacobian, -residual)  # predicted − measured, as the identification
-    fit.ci95 = {k: [lo if math.isfinite(lo) else None, hi if math.isfinite(hi) else None]
-                for k, (lo, hi) in unc.ci95.items()}
+    fit.ci95, fit.identifiable = interval_summary(unc.ci95, unc.identifiable), dict(unc.identifiable)
     fit.loss, fit.rss = float(np.mean(np.abs(residual))), float(residual @ residual)
     fit.size = model.size
     fit.theta, fit.jacobian = np.asarray(theta, dtype=np.float64), jacobian
@@ -282,9 +285,7 @@ def refrozen(replay: CachedReplay, problem, model) -> CachedReplay:
     frozen = problem.frozen(model.material)
     if abs(frozen.config.fixed_sound_speed / replay.problem.config.fixed_sound_speed - 1.0) <= SOUND_SPEED_TOLERANCE:
         return replay
-    fresh = CachedReplay(frozen, model)
-    fresh.simulations = replay.simulations
-    return fresh
+    return CachedReplay(frozen, model, replay.simulations)
 
 
 def screened_start(readings: Callable[[np.ndarray], np.ndarray], starts: list[np.ndarray], measured: np.ndarray,
@@ -382,7 +383,8 @@ def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> t
     order = sorted(fitted, key=lambda k: bics[k])
     none_loss = fitted["none"].loss
     ranking = [{"effect": k, "score": bics[k] - bics["none"], "bic": bics[k], "probability": weights[k] / total,
-                "params": fitted[k].params, "units": fitted[k].units, "ci95": fitted[k].ci95, "law": fitted[k].law,
+                "params": fitted[k].params, "units": fitted[k].units, "ci95": fitted[k].ci95,
+                "identifiable": fitted[k].identifiable, "law": fitted[k].law,
                 "loss_before": none_loss, "loss_after": fitted[k].loss, "parameters": fitted[k].size,
                 "simulations": fitted[k].simulations, "seconds": fitted[k].seconds, "warning": fitted[k].warning,
                 "converged": fitted[k].converged, "reachable_score": reachable[k] - bics["none"]}

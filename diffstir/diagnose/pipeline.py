@@ -84,7 +84,7 @@ class Diagnosis:
         strength = float(np.sqrt(np.mean((fit.predicted - none.predicted) ** 2)) /
                          np.sqrt(np.mean(self.problem.measured ** 2)))
         sure = next((w for limit, w in SURE if ev["separation"] >= limit), "unsure")
-        params = "; ".join(_param(k, v, fit.units[k], fit.ci95.get(k)) for k, v in fit.params.items()
+        params = "; ".join(_param(k, v, fit.units[k], fit.ci95[k]) for k, v in fit.params.items()
                            if k != "viscosity_scale")
         caveat = f" Caveat: {fit.warning}." if fit.warning else ""
         return (f"Left out: {fit.summary} ({params}); it changes the reading by {strength:.0%} of its rms and "
@@ -107,6 +107,7 @@ class Diagnosis:
                       "fluid_before": {"name": self.base.law.name, "params": self.base.params},
                       "fluid_after": refit.law},
             "window": {"start": self.problem.windows.start, "end": self.problem.windows.end, "unit": "s"},
+            "dead_start": self.problem.windows.dead_start.summary(),
             "simulation": {"dim": self.problem.config.dim, "dx": self.problem.config.dx,
                            "sound_speed": self.problem.config.sound_speed},
             "simulations": self.base.simulations + sum(f.simulations for f in self.fits.values()),
@@ -116,7 +117,9 @@ class Diagnosis:
 
 def _param(name: str, value: float, unit: str, ci) -> str:
     unit = "" if unit == "1" else f" {unit}"
-    if ci and ci[0] is not None and ci[1] is not None:
+    if ci is None:
+        return f"{name} = {value:.3g}{unit}, not identifiable"
+    if ci[0] is not None and ci[1] is not None:
         return f"{name} = {value:.3g}{unit}, 95 % CI {ci[0]:.3g} to {ci[1]:.3g}"
     return f"{name} = {value:.3g}{unit}"
 

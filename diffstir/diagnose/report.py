@@ -4,11 +4,11 @@ mismatch is; ``before_after.png``: measured versus simulated before and after mo
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
+from ..identify.report import format_interval
 from ..plots import pyplot, save_figure
 from ..report_files import write_summary
 from .pipeline import Diagnosis
@@ -22,10 +22,6 @@ def write_diagnosis(diag: Diagnosis, out: str | Path) -> dict[str, Path]:
     paths = write_summary(out, "diagnosis", summary, markdown(summary))
     paths.update(plot_all(diag, Path(out)))
     return paths
-
-
-def _num(value, fmt=".3g") -> str:
-    return "-" if value is None or (isinstance(value, float) and not math.isfinite(value)) else format(value, fmt)
 
 
 def markdown(summary: dict) -> str:
@@ -55,7 +51,7 @@ def markdown(summary: dict) -> str:
         if row.get("score") is None:
             lines.append(f"| {row['effect']} | - | - | - | - | not fitted: {row['note']} | 0 |")
             continue
-        params = "; ".join(f"{k} = {v:.4g} {row['units'][k]} [{_num(row['ci95'][k][0])}, {_num(row['ci95'][k][1])}]"
+        params = "; ".join(f"{k} = {v:.4g} {row['units'][k]} {format_interval(row['ci95'][k])}"
                            for k, v in row["params"].items())
         if row.get("warning"):
             params += f" (**{row['warning']}**)"

@@ -3,7 +3,7 @@
 from .models import FitModel
 from .optimise import FitResult, fit_model
 from .pipeline import DEFAULT_MODELS, Identification, identify
-from .problem import StirProblem, Windows, rig_from_recording, trajectory_from_recording
+from .problem import FitProblem, StirProblem, Windows, rig_from_recording, trajectory_from_recording
 
-__all__ = ["DEFAULT_MODELS", "FitModel", "FitResult", "Identification", "StirProblem", "Windows", "fit_model",
-           "identify", "rig_from_recording", "trajectory_from_recording"]
+__all__ = ["DEFAULT_MODELS", "FitModel", "FitProblem", "FitResult", "Identification", "StirProblem", "Windows",
+           "fit_model", "identify", "rig_from_recording", "trajectory_from_recording"]

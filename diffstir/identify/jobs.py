@@ -27,7 +27,7 @@ from .magnitude import MAX_STEPS, MagnitudeEstimate, magnitude_estimate
 from .models import FitModel
 from .nuisance import SensorNuisance
 from .optimise import FitResult, Readings, fit_model
-from .problem import StirProblem
+from .problem import FitProblem, StirProblem
 
 
 @dataclass
@@ -45,7 +45,7 @@ class FitJob:
 
     stage: str
     key: str
-    problem: StirProblem
+    problem: FitProblem
     model: FitModel
     budget: int
     optimizer: str
@@ -86,7 +86,7 @@ class ReadingJob:
 
     stage: str
     key: str
-    problem: StirProblem
+    problem: FitProblem
     model: FitModel
     priority: tuple[bool, int] = (True, 1)  # probes come before the fits that wait for them
 

@@ -27,7 +27,7 @@ from scipy import optimize
 
 from .models import FitModel
 from .nuisance import NO_NUISANCE, SensorNuisance, lag_response
-from .problem import StirProblem
+from .problem import FitProblem
 
 #: Smallest step in θ that updates the Broyden Jacobian: 100 float32 ulps of a relative change; a smaller step
 #: cannot change the simulation's float32 parameters, so its secant carries no information.
@@ -97,7 +97,7 @@ class Readings:
     as a step (it shrinks its region); the starting θ must simulate (``fit_model`` raises otherwise).
     """
 
-    def __init__(self, problem: StirProblem, model: FitModel,
+    def __init__(self, problem: FitProblem, model: FitModel,
                  on_evaluation: Callable[[str, int, float], None] | None = None):
         self.problem, self.model, self.on_evaluation = problem, model, on_evaluation
         self.cache: dict[bytes, np.ndarray] = {}
@@ -199,7 +199,7 @@ def noise_scale(measured: np.ndarray, resolution: float | None) -> float:
     return max(mad, floor, 1e-12)
 
 
-def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6, optimizer: str = "lm",
+def fit_model(problem: FitProblem, model: FitModel, *, max_iterations: int = 6, optimizer: str = "lm",
               learning_rate: float = 0.05, initial_jacobian: np.ndarray | None = None,
               initial_readings: np.ndarray | None = None,
               on_evaluation: Callable[[str, int, float], None] | None = None,
@@ -222,7 +222,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
         on_iteration: called after each iteration with (model, iteration, loss [N], θ), e.g. to checkpoint.
     """
     start = time.perf_counter()
-    if problem.config.compressibility is not None:  # one sound speed for the whole fit (``StirProblem.frozen``)
+    if problem.config.fixed_sound_speed is None:  # one sound speed for the whole fit (``FitProblem.frozen``)
         problem = problem.frozen(model.material)
     cfg = problem.config
     if model.name == "newtonian":  # above the simulator's viscosity cap [Pa·s] the reading stops responding to η
@@ -306,7 +306,7 @@ def fit_model(problem: StirProblem, model: FitModel, *, max_iterations: int = 6,
                      simulated=readings(theta) if sensor.fitted else None)
 
 
-def _adam(problem: StirProblem, model: FitModel, readings: Readings, theta0: np.ndarray, iterations: int,
+def _adam(problem: FitProblem, model: FitModel, readings: Readings, theta0: np.ndarray, iterations: int,
           learning_rate: float, record) -> tuple[np.ndarray, str]:
     """The paper's optimiser: Adam on θ with the reverse-mode gradient of mean |measured - simulated|."""
     theta = torch.tensor(theta0, dtype=torch.float64, requires_grad=True)

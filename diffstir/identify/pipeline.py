@@ -22,10 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from ..density import estimate_recording_density
+from ..errors import OutputError
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
+from ..recording.digest import recording_digest
 from ..report_files import finite_or_none
 from ..rheology import LAWS
 from .family import law_family
@@ -79,7 +81,7 @@ class Identification:
             unc = self.uncertainty[name]
             laws[name] = {
                 "params": fit.model.params_si(), "units": fit.model.units,
-                "ci95": {k: [finite_or_none(lo), finite_or_none(hi)] for k, (lo, hi) in unc.ci95.items()},
+                "ci95": interval_summary(unc.ci95, unc.identifiable),
                 "identifiable": unc.identifiable, "at_bound": unc.at_bound,
                 "loss": fit.loss, "holdout_loss": fit.holdout_loss,
                 "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
@@ -104,6 +106,7 @@ class Identification:
             "magnitude": self.magnitude,
             "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
                         "end": self.problem.windows.end, "unit": "s"},
+            "dead_start": self.problem.windows.dead_start.summary(),
             "shear_rate_range": list(self.probed_shear_rates()),
             "simulation": {**self.problem.config.numerics(), "force_error": self.model_error},
             "seconds": self.seconds,
@@ -133,7 +136,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
              coarse: SimConfig | None = None, fine_iterations: int = 3,
              sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR,
-             size_estimate: bool = True, workers: int = 1) -> Identification:
+             size_estimate: bool = True, workers: int = 1, overwrite: bool = False) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -146,7 +149,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         holdout_fraction: the last fraction of the window that is held out of the fit.
         max_iterations, optimizer: see :func:`~diffstir.identify.optimise.fit_model`.
         selection: ``"bic"``, ``"holdout"`` or ``"loss"`` (see ``selection``).
-        checkpoint: a JSON file to resume from and save to after every iteration.
+        checkpoint: a JSON file to resume from and save to after every iteration. It holds the recording's
+            content digest (``recording.digest``) and the settings; a checkpoint of another recording or of other
+            settings is refused (``OutputError``) unless ``overwrite``.
         progress: show a progress bar.
         log_dir: TensorBoard log directory (None: no logs).
         coarse: a coarser, faster simulation to fit on first (coarse-to-fine): every model is fitted there from
@@ -158,6 +163,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             (``uncertainty``; 0: the intervals hold the noise only).
         size_estimate: also estimate the Newtonian viscosity from the size of the reading (``magnitude``), beside
             the fits; a caller that reads only the fits (the diagnosis) saves its simulations with False.
+        workers: processes that run the fits side by side (1: in this process).
+        overwrite: start afresh, replacing a checkpoint of another recording or of other settings.
     """
     checked_model_error(model_error, "fit.model_error")
     unknown = sorted(set(models) - set(LAWS))
@@ -170,12 +177,12 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     problem = StirProblem(recording, config, density_report["value"], windows)
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
     sensor = SensorNuisance(tuple(sensor_nuisance))
-    settings = {"sensor_nuisance": list(sensor.fitted),
+    settings = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
                 "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
                 "max_iterations": max_iterations, **config.numerics(), "density": density_report["value"],
                 "shear_rate_probes": PROBE_INDEX_STEP,
                 "coarse": None if coarse is None else {**coarse.numerics(), "fine_iterations": fine_iterations}}
-    state = _load_checkpoint(checkpoint, settings)
+    state = _load_checkpoint(checkpoint, settings, recording_label(recording), overwrite)
     tracker = _Tracker(names, max_iterations + (0 if coarse is None else fine_iterations), progress, log_dir)
 
     def save() -> None:
@@ -277,6 +284,12 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                           magnitude=state.get("magnitude"))
 
 
+def interval_summary(ci95: dict[str, tuple[float, float]], identifiable: dict[str, bool]) -> dict:
+    """The 95 % intervals of a report, SI by name: [lower, upper] (an open end as null) for an identifiable
+    parameter, null for one the recording does not determine (its interval's ends say nothing)."""
+    return {k: [finite_or_none(lo), finite_or_none(hi)] if identifiable[k] else None for k, (lo, hi) in ci95.items()}
+
+
 def density_estimate(recording: Recording, density: float | None) -> dict:
     """The fluid's density [kg/m³] with its 95 % interval: Archimedes from the recording's density block, or
     ``density`` from the config when the recording has none."""
@@ -315,18 +328,33 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
             "unit": "N"}
 
 
-def _load_checkpoint(path: str | Path | None, settings: dict) -> dict:
-    fresh = {"settings": settings, "done": {}, "running": {}}
-    if path is None or not Path(path).exists():
+def recording_label(recording: Recording) -> str:
+    """How a checkpoint names its recording: its directory (or name)."""
+    return str(recording.path) if recording.path else (recording.name or "(unnamed)")
+
+
+def _load_checkpoint(path: str | Path | None, settings: dict, label: str, overwrite: bool) -> dict:
+    """The state saved in the checkpoint ``path`` when it holds a fit of the same recording (``settings["recording"]``,
+    its digest) with the same ``settings``; a fresh state when there is none or with ``overwrite``. Otherwise an
+    ``OutputError`` in one line."""
+    fresh = {"settings": settings, "recording": label, "done": {}, "running": {}}
+    if path is None or overwrite or not Path(path).exists():
         return fresh
     try:
         state = json.loads(Path(path).read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: the checkpoint is not valid JSON ({exc}); delete it to start afresh") from None
-    changed = sorted(k for k in settings if state.get("settings", {}).get(k) != settings[k])
+        raise OutputError(f"{path}: the checkpoint is not valid JSON ({exc}); use another out= or "
+                          "overwrite=true") from None
+    saved = state.get("settings", {}) if isinstance(state, dict) else {}
+    if saved.get("recording") != settings["recording"]:
+        digest = saved.get("recording") or "none"
+        raise OutputError(f"{path} holds a fit of recording {state.get('recording', '(unknown)')} (sha256 "
+                          f"{digest[:12]}…), not of {label} (sha256 {settings['recording'][:12]}…); use another "
+                          "out= or overwrite=true")
+    changed = sorted(k for k in settings if saved.get(k) != settings[k])
     if changed:
-        raise ValueError(f"{path}: the checkpoint was written with other settings ({', '.join(changed)}); "
-                         "use another out directory or delete the checkpoint to start afresh")
+        raise OutputError(f"{path}: the checkpoint was written with other settings ({', '.join(changed)}); use "
+                          "another out= or overwrite=true")
     return state
 
 

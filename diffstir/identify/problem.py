@@ -2,14 +2,18 @@
 have read for a given fluid.
 
 The simulation always starts from the settled fluid at the recording's first sample (the rod at rest there) and
-runs to the end of the held-out window; later samples are not simulated. A 2-D slice gives a force per unit length
+runs to the end of the held-out window; later samples are not simulated. The fitted window starts where the sensor
+wakes (``dead_start``), and the simulation still starts at the first sample: the flow the live readings see has
+developed over the dead stretch. A 2-D slice gives a force per unit length
 [N/m]; it stands for the rod's immersed length, F = F' · rod.immersion_depth [N] (end effects at the tip and the
 free surface are left out; they are part of the gap that the rectifier corrects).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
+from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 import torch
@@ -25,27 +29,141 @@ from ..trajectory import Trajectory, through_samples
 #: Headroom above the fluid for the simulated cup [m]: the paper's cup is 16.5 cm tall and filled to 13 cm.
 CUP_HEADROOM = 0.035
 
+#: The chance [1] below which a constant leading stretch of readings is not a live sensor's: a live reading of
+#: noise σ stays within the resolution's half-step of a value with a chance erf(q / (2 sqrt(2) σ)) per sample, and
+#: a stretch of readings that would do so by this chance or less, while the rod moves, is a sensor not yet awake.
+DEAD_START_CHANCE = 1e-3
+
+#: A sample counts as stirring where the rod moves faster than this share of its top speed [1] (as the probed
+#: shear rates count it, ``Identification.probed_shear_rates``).
+MOVING_SHARE = 0.05
+
+
+@dataclass(frozen=True)
+class DeadStart:
+    """A sensor that wakes late: its readings hold one value from the first sample to ``until`` [s] (the last such
+    sample, on the recording's clock) while the rod moves (``dead_start``). ``detected`` False: ``until`` is the
+    first sample's time."""
+
+    detected: bool
+    until: float
+
+    def summary(self) -> dict:
+        """The report's ``dead_start``: {"detected", "until_s"} [s]."""
+        return {"detected": self.detected, "until_s": self.until}
+
+
+def dead_start(rec: Recording) -> DeadStart:
+    """The leading stretch in which ``rec``'s reading holds its first value while the rod moves, when a live sensor
+    would not do so (``DEAD_START_CHANCE``).
+
+    The reading holds a value while it stays within half a resolution step q/2 of it (exactly, without a stated
+    resolution). The stretch is a dead start when a live reading, with the noise level σ of the readings after it
+    (1.4826 MAD of second differences / sqrt(6), at least q/sqrt(12)), would hold the value over its samples at
+    which the rod moves (faster than ``MOVING_SHARE`` of its top speed) with a chance below ``DEAD_START_CHANCE``,
+    and when it is more than twice as long as any later stretch that holds one value: a one-sided sensor reads
+    zero while the force points away from it, every stirring period for as long, the first time a little longer
+    while the force rises from rest. A reading that holds one value throughout is refused: the sensor recorded no
+    force (a ``RecordingError`` naming the file and the ``force`` column).
+    """
+    force, t = rec.force, rec.t
+    step = rec.sensor.resolution or 0.0
+    tolerance = step / 2.0  # N
+    changed = np.flatnonzero(np.abs(force - force[0]) > tolerance)
+    if changed.size == 0:
+        raise RecordingError(f"{rec.source('csv')}: column 'force' reads {force[0]:g} N throughout"
+                             + (f" (within its resolution of {step:g} N)" if step else "")
+                             + "; the sensor recorded no force")
+    woke = int(changed[0])  # the first live sample
+    speed = np.linalg.norm(rec.velocity(), axis=1)
+    moving = int(np.count_nonzero(speed[:woke] > MOVING_SHARE * speed.max())) if speed.max() > 0 else 0
+    live = force[woke:]
+    d2 = np.diff(live, 2) if live.size > 2 else np.zeros(1)
+    noise = max(1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0), step / math.sqrt(12.0))
+    if tolerance == 0.0:
+        hold = 0.0  # a live reading does not repeat a value exactly
+    elif noise == 0.0:
+        hold = 1.0
+    else:
+        hold = math.erf(tolerance / (math.sqrt(2.0) * noise))
+    chance = hold ** moving if moving else 1.0
+    detected = chance < DEAD_START_CHANCE and 2 * _longest_hold(live, tolerance) < woke
+    return DeadStart(detected=detected, until=float(t[woke - 1]) if detected else float(t[0]))
+
+
+def _longest_hold(readings: np.ndarray, tolerance: float) -> int:
+    """The most consecutive ``readings`` [N] that stay within ``tolerance`` [N] of the first of them."""
+    longest, first = 0, 0
+    for k in range(1, readings.size + 1):
+        if k == readings.size or abs(readings[k] - readings[first]) > tolerance:
+            longest, first = max(longest, k - first), k
+    return longest
+
 
 @dataclass(frozen=True)
 class Windows:
     """Time windows [s] of a fit, on the recording's clock: samples in (start, split] are fitted, samples in
-    (split, end] are held out to judge over-fitting."""
+    (split, end] are held out to judge over-fitting. ``dead_start``: the sensor's dead start the windows follow
+    (None: not looked for)."""
 
     start: float
     split: float
     end: float
+    dead_start: DeadStart | None = None
 
     @classmethod
     def of(cls, rec: Recording, fit_seconds: float | None, holdout_fraction: float) -> "Windows":
-        """The first ``fit_seconds`` [s] of the recording (all of it when None), of which the last
-        ``holdout_fraction`` is held out."""
+        """``fit_seconds`` [s] of the recording from the end of the sensor's dead start (``dead_start``; the first
+        sample without one), all of it after that when None, clipped to the recording's end; the last
+        ``holdout_fraction`` of it is held out."""
         if not 0.0 <= holdout_fraction < 1.0:
             raise ValueError(f"fit.holdout_fraction = {holdout_fraction}; expected a fraction in [0, 1)")
         if fit_seconds is not None and not fit_seconds > 0:
             raise ValueError(f"fit.window = {fit_seconds}; expected a positive duration in s (or null for all)")
-        start = float(rec.t[0])
+        dead = dead_start(rec)
+        start = dead.until
         end = float(rec.t[-1]) if fit_seconds is None else min(float(rec.t[-1]), start + float(fit_seconds))
-        return cls(start=start, split=end - holdout_fraction * (end - start), end=end)
+        return cls(start=start, split=end - holdout_fraction * (end - start), end=end, dead_start=dead)
+
+
+@runtime_checkable
+class FitProblem(Protocol):
+    """What ``fit_model``, ``Readings`` and the uncertainty read of a problem: measured readings on compared
+    samples, the simulated readings for a material, and the simulation settings. ``StirProblem`` (one recording),
+    ``behaviour.joint.JointProblem`` (windows of several recordings) and ``diagnose.candidates.CachedReplay`` (a
+    candidate's replay, cached by its θ) implement it.
+
+    Attributes:
+        config: the simulator's resolution and numerics.
+        density: the fluid's density [kg/m³].
+        recording: the (first) recording; its sensor's resolution [N] sets the robust loss's noise floor.
+        times: each compared sample's time [s], (M,).
+        measured: the measured readings [N], (M,).
+        train: which samples are fitted, (M,) bool; the others are held out.
+        weights: each sample's residual weight [1], (M,).
+    """
+
+    config: SimConfig
+    density: float
+    recording: Recording
+    times: np.ndarray
+    measured: np.ndarray
+    train: np.ndarray
+    weights: np.ndarray
+
+    def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
+        """The paper's loss, mean |measured − predicted| [N], over the fitted (or held-out) samples; None when
+        there are none."""
+        ...
+
+    def simulate(self, material: nn.Module) -> Tensor:
+        """Simulated readings [N] at the compared samples for ``material``, (M,)."""
+        ...
+
+    def frozen(self, material: nn.Module) -> Self:
+        """This problem with the sound speed ``material`` gets (``SimConfig.compressibility``) held fixed; itself
+        when its sound speed is fixed already."""
+        ...
 
 
 def rig_from_recording(rec: Recording) -> Rig:
@@ -60,7 +178,7 @@ def trajectory_from_recording(rec: Recording, end: float | None = None) -> Traje
     along the smooth curve through the samples (``trajectory.through_samples``), not along their chords."""
     last = rec.t.size if end is None else min(rec.t.size, int(np.searchsorted(rec.t, end, side="right")) + 1)
     z = 0.0 if rec.z is None else rec.z[:last]
-    return through_samples(rec.t[:last], np.stack([rec.x[:last], rec.y[:last]], axis=-1), z)
+    return through_samples(rec.t[:last], np.stack([rec.x[:last], rec.y[:last]], axis=-1), z, where=rec.source("csv"))
 
 
 class StirProblem:

@@ -51,6 +51,10 @@ def markdown(summary: dict) -> str:
     if refined is not None:
         value = "-" if refined["value"] is None else f"{refined['value']:.4g} Pa·s"
         lines.append(f"- learned sim-to-real rectifier: {value} ({refined['note']})")
+    dead = summary["dead_start"]
+    if dead["detected"]:
+        lines.append(f"- the sensor reads one value until {dead['until_s']:.3g} s while the rod moves (a dead start): "
+                     "the fit window starts there, the simulation at the first sample")
     if not summary["resolvable"]["viscosity"]:
         lines.append("- **not identifiable** from the waveform: doubling the viscosity changes the reading by "
                      f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "
@@ -68,10 +72,8 @@ def markdown(summary: dict) -> str:
     if summary.get("baseline"):
         rows["corotated (baseline)"] = summary["baseline"]
     for name, law in rows.items():
-        params = "; ".join(
-            f"{k} = {v:.4g} [{format_bound(law['ci95'][k][0])}, {format_bound(law['ci95'][k][1])}] "
-            f"{law['units'][k]}"
-            + ("" if law["identifiable"][k] else " (not identifiable)") for k, v in law["params"].items())
+        params = "; ".join(f"{k} = {v:.4g} {law['units'][k]} {format_interval(law['ci95'][k])}"
+                           for k, v in law["params"].items())
         holdout = "-" if law["holdout_loss"] is None else f"{law['holdout_loss']:.4g}"
         lines.append(f"| {name} | {law['loss']:.4g} | {holdout} | {law['bic']:.1f} | {params} |")
     lines += ["", "Rankings: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in
@@ -81,6 +83,11 @@ def markdown(summary: dict) -> str:
               f"{summary['simulation']['dim']}-D, dx = {summary['simulation']['dx']} m; {summary['seconds']:.0f} s.",
               ""]
     return "\n".join(lines)
+
+
+def format_interval(interval: list | None) -> str:
+    """A report's 95 % interval for a table: [lower, upper], or "not identifiable" where it is null."""
+    return "not identifiable" if interval is None else f"[{format_bound(interval[0])}, {format_bound(interval[1])}]"
 
 
 def format_bound(value) -> str:
