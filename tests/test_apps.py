@@ -150,7 +150,7 @@ def test_collect_replaces_the_pairs_file_in_one_step(tmp_path, monkeypatch):
     def disk_full(fd):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(pairs.os, "fsync", disk_full)
+    monkeypatch.setattr(os, "fsync", disk_full)
     with pytest.raises(OSError, match="No space left"):
         pairs.collect(design, tmp_path)
     assert (tmp_path / "pairs.jsonl").read_text() == "old\n"  # the old file whole, no temporary file left
@@ -158,3 +158,14 @@ def test_collect_replaces_the_pairs_file_in_one_step(tmp_path, monkeypatch):
     monkeypatch.undo()
     manifest = pairs.collect(design, tmp_path)
     assert (tmp_path / "pairs.jsonl").read_text() == "" and manifest["pairs"] == 0
+
+
+def test_a_checkpoint_of_another_recording_in_out_is_refused_in_one_line(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    other = json.dumps({"settings": {"recording": "0" * 64}, "recording": "another", "done": {}, "running": {}})
+    (out / "checkpoint.json").write_text(other)
+    done = run("diffstir-fit", f"recording={EXAMPLE}", f"out={out}", cwd=tmp_path)
+    assert_refused(done, "diffstir-fit", f"{out / 'checkpoint.json'} holds a fit of recording another")
+    assert (out / "checkpoint.json").read_text() == other and sorted(p.name for p in out.iterdir()) == [
+        "checkpoint.json"]

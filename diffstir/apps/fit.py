@@ -42,15 +42,13 @@ def main(cfg: DictConfig) -> None:
     coarse = instantiate(cfg.coarse) if cfg.get("coarse") else None
     rectifier = rectifier_path(str(cfg.rectifier.checkpoint)) if cfg.rectifier.checkpoint else None
     out = Run.writes(Path(to_absolute_path(str(cfg.out))), "checkpoint.json")
-    if cfg.overwrite:
-        (out / "checkpoint.json").unlink(missing_ok=True)
     result = identify(
         recording, list(cfg.model), config=config, density=cfg.density, baseline=cfg.baseline,
         window=cfg.fit.window, holdout_fraction=cfg.fit.holdout_fraction, max_iterations=cfg.fit.max_iterations,
         optimizer=cfg.fit.optimizer, selection=cfg.fit.selection, checkpoint=out / "checkpoint.json",
         progress=cfg.progress, log_dir=out / "tensorboard", coarse=coarse, fine_iterations=cfg.fit.fine_iterations,
         sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
-        workers=config_workers(cfg),
+        workers=config_workers(cfg), overwrite=bool(cfg.overwrite),
     )
     if rectifier is not None:
         result.refined = refined_viscosity(result, rectifier)
