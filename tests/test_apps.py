@@ -38,6 +38,11 @@ def assert_refused(done, app: str, message: str) -> None:
     (["fit.sensor_nuisance=[lag]", "fit.optimizer=adam"], "fit.sensor_nuisance = ['lag'] needs fit.optimizer = lm"),
     (["fit.selection=holdout", "fit.holdout_fraction=0"], "fit.selection = 'holdout' needs held-out samples"),
     (["rectifier.checkpoint=missing.ckpt"], "rectifier.checkpoint = missing.ckpt: no such file"),
+    (["fit.model_error=-0.1"], "fit.model_error = -0.1; expected a relative force error in [0, 1)"),
+    (["fit.max_iterations=0"], "fit.max_iterations = 0; expected at least 1"),
+    (["threads=0"], "threads = 0; expected at least 1"),
+    (["fit.windw=3"], "Could not override 'fit.windw'."),  # misspelt
+    (["sim=slice3d"], "In 'fit': Could not find 'sim/slice3d' Available options in 'sim': coarse2d, fine3d"),
 ])
 def test_a_wrong_fit_setting_is_refused_in_one_line_before_any_simulation_and_writes_nothing(tmp_path, args,
                                                                                                message):

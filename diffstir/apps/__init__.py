@@ -53,6 +53,21 @@ def check_choices(setting: str, values, choices) -> None:
                           f"{', '.join(map(str, choices))}")
 
 
+def check_at_least(setting: str, value, low: float, unit: str = "") -> None:
+    """Raise ConfigError unless ``value`` (null allowed) is a number of at least ``low`` [``unit``]."""
+    if value is not None and not (isinstance(value, (int, float)) and value >= low):
+        raise ConfigError(f"{setting} = {value!r}{' ' + unit if unit else ''}; expected at least {low}"
+                          f"{' ' + unit if unit else ''}")
+
+
+def check_processes(cfg: DictConfig) -> None:
+    """Raise ConfigError unless ``threads`` (torch threads per process) and ``workers`` (null: one per CPU) are at
+    least 1."""
+    check_at_least("threads", cfg.threads, 1)
+    if "workers" in cfg:
+        check_at_least("workers", cfg.workers, 1)
+
+
 def recording_key(root: DictConfig) -> str:
     """``<name>-<first 8 hex digits of its content digest>`` of each recording (``recording``, else
     ``recordings``) of the config ``root``, joined by ``+``."""
@@ -153,6 +168,7 @@ def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], Non
                 print(help_page(name, config_name, task.__module__))
                 return
             Run.out, Run.kept = None, ()
+            check_overrides(name, config_name, sys.argv[1:])
             if not OmegaConf.has_resolver("run_folder"):
                 OmegaConf.register_new_resolver("run_folder", run_folder)
             handlers = {sig: signal.signal(sig, _raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -169,6 +185,29 @@ def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], Non
         return main
 
     return decorate
+
+
+def check_overrides(name: str, config_name: str, args: list[str]) -> None:
+    """Compose ``conf/<config_name>.yaml`` with the command line's overrides ``args``, so that a misspelt key, an
+    unknown option of a config group or a malformed override is refused in one line with exit status 2 before Hydra
+    starts (with ``-m`` or Hydra's own flags, or ``HYDRA_FULL_ERROR=1``, Hydra reports them itself)."""
+    if any(arg.startswith("-") for arg in args) or os.environ.get("HYDRA_FULL_ERROR") == "1":
+        return
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+
+    try:
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            compose(config_name, overrides=args)
+    except (HydraException, OmegaConfBaseException) as error:
+        parts: list[str] = []
+        for line in str(error).split("Config search path:")[0].splitlines():
+            if line.startswith("\t") and parts:
+                parts[-1] += (" " if parts[-1].endswith(":") else ", ") + line.strip()
+            elif line.strip() and not line.strip().startswith(("full_key:", "object_type=", "See https://")):
+                parts.append(line.strip())
+        print(f"{name}: error: {' '.join(parts)}", file=sys.stderr, flush=True)
+        sys.exit(2)
 
 
 def help_page(name: str, config_name: str, module: str) -> str:

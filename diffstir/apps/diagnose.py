@@ -13,7 +13,7 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig
 
-from diffstir.apps import Run, check_choices, command, config_workers
+from diffstir.apps import Run, check_at_least, check_choices, check_processes, command, config_workers
 from diffstir.diagnose import CANDIDATES, diagnose, write_diagnosis
 from diffstir.errors import ConfigError, OutputError
 from diffstir.identify import identify
@@ -22,8 +22,13 @@ from diffstir.recording import load_recording
 
 @command("diffstir-diagnose", "diagnose")
 def main(cfg: DictConfig) -> None:
+    check_processes(cfg)
     torch.set_num_threads(int(cfg.threads))
     check_choices("candidates", list(cfg.candidates), CANDIDATES)
+    check_at_least("max_iterations", cfg.max_iterations, 1)
+    check_at_least("identify_iterations", cfg.identify_iterations, 1)
+    check_at_least("density", cfg.density, 1.0, "kg/m^3")
+    check_at_least("window", cfg.window, 1e-3, "s")
     recording = load_recording(to_absolute_path(str(cfg.recording)))
     identification = None if cfg.identification is None else Path(to_absolute_path(str(cfg.identification)))
     if identification is not None and not identification.exists():

@@ -14,7 +14,9 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR, Run, check_choice, check_choices, command, config_workers
+from diffstir.apps import (
+    CONF_DIR, Run, check_at_least, check_choice, check_choices, check_processes, command, config_workers,
+)
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.behaviour.pipeline import SLOPE_TESTS
 from diffstir.errors import ConfigError, OutputError
@@ -31,6 +33,8 @@ OPTIMIZERS = ("lm", "adam")
 
 @command("diffstir-fit", "fit")
 def main(cfg: DictConfig) -> None:
+    check_processes(cfg)
+    check_at_least("density", cfg.density, 1.0, "kg/m^3")
     torch.set_num_threads(int(cfg.threads))
     if "behaviour" in cfg:
         return behaviour(cfg)
@@ -61,6 +65,12 @@ def main(cfg: DictConfig) -> None:
         diagnose_if_poor(result, cfg, out)
 
 
+def check_model_error(setting: str, value) -> None:
+    """Raise ConfigError unless ``value`` is a relative force error in [0, 1)."""
+    if not (isinstance(value, (int, float)) and 0.0 <= value < 1.0):
+        raise ConfigError(f"{setting} = {value!r}; expected a relative force error in [0, 1)")
+
+
 def check_fit_settings(cfg: DictConfig) -> None:
     """Raise ConfigError for a setting the fit would refuse only after simulating: the laws, the optimizer, the
     selection criterion, the sensor nuisances."""
@@ -68,17 +78,21 @@ def check_fit_settings(cfg: DictConfig) -> None:
     check_choice("fit.optimizer", cfg.fit.optimizer, OPTIMIZERS)
     check_choice("fit.selection", cfg.fit.selection, CRITERIA)
     check_choices("fit.sensor_nuisance", list(cfg.fit.sensor_nuisance), NUISANCES)
+    check_at_least("fit.max_iterations", cfg.fit.max_iterations, 1)
+    check_at_least("fit.fine_iterations", cfg.fit.fine_iterations, 0)
+    check_model_error("fit.model_error", cfg.fit.model_error)
     if cfg.fit.sensor_nuisance and cfg.fit.optimizer != "lm":
         raise ConfigError(f"fit.sensor_nuisance = {list(cfg.fit.sensor_nuisance)} needs fit.optimizer = lm "
                           f"(got {cfg.fit.optimizer!r})")
     if cfg.fit.selection == "holdout" and not cfg.fit.holdout_fraction:
         raise ConfigError("fit.selection = 'holdout' needs held-out samples; set fit.holdout_fraction > 0 (a "
                           "fraction of the window, 1)")
-    if cfg.fit.holdout_fraction is not None and not 0.0 <= float(cfg.fit.holdout_fraction) < 1.0:
-        raise ConfigError(f"fit.holdout_fraction = {cfg.fit.holdout_fraction}; expected a fraction in [0, 1)")
-    if cfg.fit.window is not None and float(cfg.fit.window) <= 0.0:
-        raise ConfigError(f"fit.window = {cfg.fit.window} s; expected a positive duration in s, or null (all of "
-                          "the recording)")
+    holdout, window = cfg.fit.holdout_fraction, cfg.fit.window
+    if not (isinstance(holdout, (int, float)) and 0.0 <= holdout < 1.0):
+        raise ConfigError(f"fit.holdout_fraction = {holdout!r}; expected a fraction of the window in [0, 1)")
+    if window is not None and not (isinstance(window, (int, float)) and window > 0.0):
+        raise ConfigError(f"fit.window = {window!r} s; expected a positive duration in s, or null (all of the "
+                          "recording)")
 
 
 def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
@@ -121,6 +135,8 @@ def refined_viscosity(result, path: Path) -> dict:
 def behaviour(cfg: DictConfig) -> None:
     """``experiment=behaviour``: classify the fluid of ``recordings`` (docs/behaviour.md)."""
     b = cfg.behaviour
+    check_model_error("behaviour.model_error", b.model_error)
+    check_at_least("behaviour.iterations", b.iterations, 1)
     check_choices("behaviour.joint_models", list(b.joint_models), sorted(LAWS))
     check_choice("behaviour.slope_test", b.slope_test, SLOPE_TESTS)
     if b.slope_test == "joint_index" and "power_law" not in b.joint_models:
@@ -149,6 +165,8 @@ def mixing(cfg: DictConfig) -> None:
     if len(cfg.recordings) != 1:
         raise ConfigError(f"recordings = {list(cfg.recordings)}; experiment=mixing analyses one recording")
     m = cfg.mixing
+    check_model_error("mixing.model_error", m.model_error)
+    check_at_least("mixing.iterations", m.iterations, 1)
     if len(m.viscosities) != 2 or min(m.viscosities) <= 0:
         raise ConfigError(f"mixing.viscosities = {list(m.viscosities)}; expected [eta1, eta2] in Pa·s, both "
                           "positive, the more viscous first")

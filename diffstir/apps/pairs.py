@@ -12,12 +12,13 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import command
+from diffstir.apps import check_processes, command
 from diffstir.rectifier.pairs import collect, design_from_mapping, run_shard
 
 
 @command("diffstir-pairs", "pairs")
 def main(cfg: DictConfig) -> None:
+    check_processes(cfg)
     torch.set_num_threads(int(cfg.threads))
     design = design_from_mapping(OmegaConf.to_container(cfg.pairs.design, resolve=True))
     out = to_absolute_path(str(cfg.out))

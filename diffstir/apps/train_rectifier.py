@@ -22,7 +22,7 @@ from hydra.utils import to_absolute_path
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import Run, command
+from diffstir.apps import Run, check_processes, command
 from diffstir.errors import ConfigError, OutputError
 from diffstir.rectifier.training import PairData, evaluate, train
 
@@ -32,6 +32,7 @@ OUTPUTS = ("rectifier.ckpt", "card.json")
 
 @command("diffstir-train-rectifier", "rectifier")
 def main(cfg: DictConfig) -> None:
+    check_processes(cfg)
     torch.set_num_threads(int(cfg.threads))
     data_path, out = Path(to_absolute_path(str(cfg.data))), Path(to_absolute_path(str(cfg.out)))
     if not data_path.is_file():
