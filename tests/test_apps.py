@@ -3,6 +3,7 @@ output folder in one line with exit status 2 and nothing written; help pages; wh
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -83,7 +84,7 @@ def test_the_fits_default_output_folder_is_keyed_by_the_recording(tmp_path):
     from omegaconf import OmegaConf
 
     from diffstir.apps import CONF_DIR, run_folder
-    from diffstir.recording import load_recording
+    from diffstir.recording import load_recording, save_recording
     from diffstir.recording.digest import recording_digest
 
     copy = shutil.copytree(EXAMPLE, tmp_path / "carreau_example")
@@ -93,9 +94,10 @@ def test_the_fits_default_output_folder_is_keyed_by_the_recording(tmp_path):
         a, b = (compose("fit", overrides=[f"recording={path}"]) for path in (EXAMPLE, copy))
     digest = recording_digest(load_recording(EXAMPLE))[:8]
     assert a.out == b.out == f"outputs/fit/carreau_example-{digest}"  # the same content, the same folder
-    (copy / "stir.csv").write_text((copy / "stir.csv").read_text().replace("0.0", "0.00", 1))
+    rec = load_recording(EXAMPLE)  # another recording of the same name: twice the force
+    other = save_recording(dataclasses.replace(rec, force=2 * rec.force), tmp_path / "other" / "carreau_example")
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        changed = compose("fit", overrides=[f"recording={copy}"])
+        changed = compose("fit", overrides=[f"recording={other}"])
     assert changed.out != a.out and changed.overwrite is False
 
 
