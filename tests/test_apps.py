@@ -111,11 +111,13 @@ def test_each_app_has_its_own_help_page(tmp_path, app):
     groups = page.split("Config groups (group=option):")[-1]
     own = {"diffstir-fit": ["optimizer: lm", "# lm | adam", "diffstir-fit experiment=behaviour"],
            "diffstir-diagnose": ["candidates:", "identify_iterations:"],
-           "diffstir-simulate": ["stir:", "law"], "diffstir-synth": ["overwrite: false", "lab/fluid: "],
-           "diffstir-record": ["hardware/adc: emulated", "flush_interval:"],
+           "diffstir-simulate": ["stir:", "law"], "diffstir-synth": ["overwrite: false", "  lab/fluid  "],
+           "diffstir-record": ["  hardware/adc  ", "emulated, serial", "flush_interval:"],
            "diffstir-pairs": ["collect: false", "shard:"],
            "diffstir-train-rectifier": ["overwrite: false", "out: outputs/rectifier/"]}[app]
     assert all(text in page for text in own), page
+    if app == "diffstir-fit":
+        assert "  coarse (sim options)  " in groups and "  experiment  " in groups
     if app != "diffstir-record":
         assert "hardware" not in groups and "arm:" not in groups
     if app not in ("diffstir-synth", "diffstir-pairs"):

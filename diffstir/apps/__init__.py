@@ -221,7 +221,8 @@ def help_page(name: str, config_name: str, module: str) -> str:
         folder = Path(CONF_DIR) / group
         if folder.is_dir():
             choices = sorted(p.stem for p in folder.glob("*.yaml"))
-            groups.append(f"  {package or group:<22} {group}: {', '.join(choices)}")
+            label = f"{package} ({group} options)" if package else group
+            groups.append(f"  {label:<26} {', '.join(choices)}")
     doc = (sys.modules[module].__doc__ or "").strip()
     parts = [f"usage: {name} [key=value ...] [group=option ...]   (Hydra overrides; -m: a sweep)", "",
              doc, "", "Options (conf/" + config_name + ".yaml; set any key on the command line, "
