@@ -232,8 +232,7 @@ def test_a_physics_fit_goes_on_at_the_sound_speed_of_where_it_moved():
     traj = programme()
     blank = rig_recording(traj, name="blank")
     # a floor of 0.5 m/s under the viscous c of 0.8 Pa s at 0.06 m/s, 1.45 m/s
-    problem = StirProblem(blank, replace(FAST, sound_speed=0.5, compressibility=0.03), 1000.0,
-                          Windows.of(blank, None, 0.0))
+    problem = StirProblem(blank, replace(FAST, sound_speed=0.5, compressibility=0.03), 1000.0)
     zeros = np.zeros(traj.t.size)
     ctx = Context(times=traj.t, measured=zeros, base_reading=zeros, scale_column=zeros, accel_reading=None,
                   noise=NOISE, shear_rate=4.8, duration=float(traj.t[-1]), rebuild_time=1.0,

@@ -24,12 +24,13 @@ FOLLOWING = {"dim": 2, "dx": 0.01, "sound_speed": 0.5, "compressibility": 0.03}
 
 
 def recording(duration=0.3, force=0.02):
-    """A short circular stir read tangentially; ``force`` [N] is a constant stand-in reading."""
+    """A short circular stir read tangentially; its stand-in reading [N] rises to ``force`` [N] as the rod starts."""
     traj = circle(radius=0.015, speed=0.06, duration=duration, ramp_time=0.05, sample_rate=100)
     return Recording(cup=CupGeometry(radius=0.0425, fill_height=0.13),
                      rod=RodGeometry(radius=0.0125, immersion_depth=0.08),
                      sensor=SensorSpec(mode="tangential", resolution=0.001, sample_rate=100.0), density=None,
-                     t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=np.full(traj.t.size, force), name="contract")
+                     t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1], force=force * np.minimum(traj.t / 0.05, 1.0),
+                     name="contract")
 
 
 def implementations():

@@ -2,7 +2,9 @@
 reported, and the fit window starts where it wakes; live readings are not taken for a dead start; a sensor silent
 throughout is refused before any simulation."""
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,13 +13,15 @@ import torch
 from diffstir.identify import StirProblem, Windows, identify
 from diffstir.identify.problem import DEAD_START_CHANCE, dead_start, rig_from_recording, trajectory_from_recording
 from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, sensor_reading_np
+from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, load_recording,
+                                sensor_reading_np)
 from diffstir.rheology import Newtonian
 from diffstir.trajectory import circle
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # as tests/test_identify.py: coarse, but the same model
 CUP, ROD = CupGeometry(radius=0.0425, fill_height=0.13), RodGeometry(radius=0.0125, immersion_depth=0.08)
 SEEDS = 20
+EXAMPLES = Path(__file__).resolve().parents[1] / "diffstir" / "data" / "examples"
 
 
 def thin_film(force, rate, duration, resolution=None, one_sided=True, speed=0.1):
@@ -41,6 +45,21 @@ def test_a_sensor_that_wakes_late_is_a_dead_start_and_the_window_starts_where_it
     problem = StirProblem(rec, FAST, 1000.0, windows)
     assert problem.measured.min() > 0.0075  # every compared sample is live
     assert Windows.of(rec, 10.0, 0.0).end == rec.t[-1]  # clipped to the recording
+
+
+@pytest.mark.parametrize("name, woke", [("rig_dead_start", 0.4), ("rig_jitter_1khz", None),
+                                        ("rig_behaviour_slow", None), ("carreau_example", None)])
+def test_the_bundled_recordings_dead_starts_are_read_right(name, woke):
+    """The bundled thin film wakes 0.4 s in (its truth file); the other rigs' sensors are live from the start."""
+    rec = load_recording(EXAMPLES / name)
+    dead = dead_start(rec)
+    assert dead.detected == (woke is not None)
+    if woke is not None:  # the last dead sample, one 1 ms sample before it wakes
+        assert json.loads((EXAMPLES / f"{name}.truth.json").read_text())["sensor"]["dead_start"] == woke
+        assert dead.until == pytest.approx(woke - 1e-3, abs=1e-9)
+        assert Windows.of(rec, 2.0, 0.25).start == dead.until
+    else:
+        assert dead.until == rec.t[0] == Windows.of(rec, 2.0, 0.25).start
 
 
 def test_a_quantised_sensor_that_wakes_late_is_a_dead_start():

@@ -540,6 +540,36 @@ def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_i
     assert row.count("not identifiable") == 2 and "[" not in row
 
 
+def test_progress_counts_simulations_against_an_estimate_revised_as_fits_finish():
+    """The bar's total is what the tasks are expected to spend, each finished task counting what it spent; its
+    loss is the best so far of the law (no simulation: the tracker's arithmetic)."""
+    from diffstir.identify.progress import Progress, fit_simulations
+
+    assert fit_simulations(4, 6, reuses_jacobian=False) == 6 + 2 * 4  # start, 4 columns, steps, final Jacobian
+    assert fit_simulations(4, 2, reuses_jacobian=True) == 3
+    progress = Progress({"start": 9, "fit/newtonian": fit_simulations(1, 6, False), "fit/carreau": 14})
+    assert (progress.done, progress.total) == (0, 9 + 8 + 14)
+    for _ in range(9):
+        progress.evaluation("start")
+    progress.finished("start")
+    for loss in (0.3, 0.1, float("nan"), 0.2):
+        progress.evaluation("fit/newtonian", "newtonian", loss)
+    assert progress.best == {"newtonian": 0.1}  # the best, not the last, and a blown-up step does not count
+    progress.finished("fit/newtonian")  # converged after 4 of its 8: the total falls by 4
+    assert (progress.done, progress.total) == (13, 9 + 4 + 14)
+    # carreau's jobs are handed out: two starts replace the one-start estimate
+    progress.expect("fit/carreau/start0", 14, replaces="fit/carreau")
+    progress.expect("fit/carreau/start1", 14, replaces="fit/carreau")
+    assert progress.total == 9 + 4 + 28
+    for _ in range(16):  # a start that needs more than expected raises the total with it
+        progress.evaluation("fit/carreau/start0", "carreau", 0.05)
+    assert (progress.done, progress.total) == (29, 9 + 4 + 16 + 14)
+    progress.finished("fit/carreau/start0")
+    progress.finished("fit/carreau/start1")  # restored from a checkpoint: nothing spent
+    assert progress.total == progress.done == 29
+    assert re.fullmatch(r"identify: 29 simulations in \d+\.\d s; selected carreau", progress.summary("carreau"))
+
+
 @pytest.fixture(scope="module")
 def period_recordings():
     """Two Newtonian recordings (TRUE_ETA and 1 Pa s) of 1.7 s: loading checks that a recording spans at least one

@@ -115,6 +115,10 @@ class ViscosityLadder:
         return self.invert(problem.mean_reading(), upper)
 
 
+#: The simulations ``effective_shear_rate`` spends: two Newtonian and two power-law probes.
+SHEAR_RATE_PROBES = 4
+
+
 def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None,
                          evaluate: MeanReadings | None = None) -> float:
     """γ̇_eff [1/s] at Newtonian-equivalent viscosity ``eta_n`` [Pa·s] (module docstring), from four simulations

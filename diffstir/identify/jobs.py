@@ -8,7 +8,8 @@ Newtonian fine fit and, as their inputs arrive, the other fine fits run side by 
 A job reports what it does as events, ``(kind, stage, key, *data)``, which the parent turns into its progress bar,
 TensorBoard scalars and checkpoint:
 
-- ``("evaluation", stage, model, count, loss)``: a forward simulation was spent (loss [N]);
+- ``("evaluation", stage, key, count, loss)``: a forward simulation was spent by the job ``key`` (its
+  ``count``-th, loss [N]);
 - ``("iteration", stage, key, iteration, loss, theta, params)``: an accepted iterate, to resume from.
 
 Each simulation is deterministic at a given number of threads, so the fits do not depend on the number of
@@ -56,7 +57,7 @@ class FitJob:
 
     def run(self, report: Callable[[tuple], None]) -> FitResult:
         def on_evaluation(model_name, count, loss):
-            report(("evaluation", self.stage, model_name, count, loss))
+            report(("evaluation", self.stage, self.key, count, loss))
 
         def on_iteration(model, iteration, loss, theta):
             report(("iteration", self.stage, self.key, iteration, loss, [float(t) for t in theta], model.params_si()))
@@ -91,7 +92,8 @@ class ReadingJob:
     priority: tuple[bool, int] = (True, 1)  # probes come before the fits that wait for them
 
     def run(self, report: Callable[[tuple], None]) -> np.ndarray:
-        readings = Readings(self.problem, self.model, lambda *data: report(("evaluation", self.stage, *data)))
+        readings = Readings(self.problem, self.model,
+                            lambda name, count, loss: report(("evaluation", self.stage, self.key, count, loss)))
         return readings(self.model.theta())
 
 
@@ -108,8 +110,9 @@ class MagnitudeJob:
     priority: tuple[bool, int] = (False, MAX_STEPS + 1)  # nothing waits for it: after the Newtonian fits
 
     def run(self, report: Callable[[tuple], None]) -> MagnitudeEstimate:
-        return magnitude_estimate(self.problem, self.start, self.model_error,
-                                  on_evaluation=lambda *data: report(("evaluation", self.stage, *data)))
+        return magnitude_estimate(
+            self.problem, self.start, self.model_error,
+            on_evaluation=lambda name, count, loss: report(("evaluation", self.stage, self.key, count, loss)))
 
 
 def mean_readings_on(workers: Workers, stage: str, problem: StirProblem, models: list[FitModel]) -> list[float]:

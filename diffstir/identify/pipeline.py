@@ -31,14 +31,17 @@ from ..recording.digest import recording_digest
 from ..report_files import finite_or_none
 from ..rheology import LAWS
 from .family import law_family
-from .initial import LADDER_VISCOSITIES, PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
+from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate,
+                      mean_stirring_speed)
 from .jobs import MagnitudeJob, mean_readings_on
+from .magnitude import MAX_STEPS as MAGNITUDE_STEPS
 from .models import FitModel
 from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
 from .optimise import FitResult, noise_scale
 from .problem import StirProblem, Windows
+from .progress import Progress, fit_simulations
 from .selection import bic, select
-from .stages import Plan, Stage
+from .stages import SECANT_STEPS, Plan, Stage
 from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, checked_model_error, laplace, log_viscosity_interval
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
@@ -183,7 +186,6 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                 "shear_rate_probes": PROBE_INDEX_STEP,
                 "coarse": None if coarse is None else {**coarse.numerics(), "fine_iterations": fine_iterations}}
     state = _load_checkpoint(checkpoint, settings, recording_label(recording), overwrite)
-    tracker = _Tracker(names, max_iterations + (0 if coarse is None else fine_iterations), progress, log_dir)
 
     def save() -> None:
         if checkpoint is not None:
@@ -196,7 +198,11 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         """A job's event (``jobs``): progress and TensorBoard, and its last iterate into the checkpoint."""
         kind, stage, name, *data = event
         if kind == "evaluation":
-            tracker.evaluation(name, *data)
+            count, loss = data
+            if name.startswith("probe") or name == "magnitude":
+                tracker.evaluation("start" if name.startswith("probe") else name)
+            else:
+                tracker.evaluation(f"{stage}/{name}", name.split("/")[0], loss)
         elif kind == "iteration":
             iteration, loss, theta, params = data
             state["running"].setdefault(stage, {})[name] = theta
@@ -233,8 +239,10 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     else:
         stages = (Stage("coarse", StirProblem(recording, coarse, density_report["value"], windows), max_iterations),
                   Stage("fine", problem, fine_iterations))
+    tracker = Progress(_expected_simulations(stages, names, state, size_estimate), bar=progress, log_dir=log_dir)
     with Workers(workers, on_event) as pool:
         start_estimates(stages[0], pool)
+        tracker.finished("start")
         plan = Plan(stages, names, ladder_estimate=state["ladder"]["estimate"],
                     shear_rate=state["effective_shear_rate"], optimizer=optimizer, sensor=sensor, stage_dt=stage_dt,
                     done=state["done"], running=state["running"])
@@ -244,6 +252,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             """The fits whose inputs are known, and the magnitude estimate once the last Newtonian fit is."""
             nonlocal magnitude_pending
             for ready in plan.ready():
+                tracker.expect(f"{ready.stage}/{ready.key}", fit_simulations(ready.model.size, ready.budget,
+                                                                             ready.jacobian is not None),
+                               replaces=f"{ready.stage}/{ready.model.name}")
                 pool.submit(ready)
             newtonian = plan.fits[stages[-1].name].get("newtonian")
             if size_estimate and newtonian is not None and "magnitude" not in state and not magnitude_pending:
@@ -255,12 +266,13 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         for job, result in pool.completed():
             if isinstance(job, MagnitudeJob):
                 state["magnitude"] = result.summary()
+                tracker.finished("magnitude")
             else:
                 plan.finish(job, result)
+                tracker.finished(f"{job.stage}/{job.key}")
             save()
             submit_ready()
     fits = plan.final()
-    tracker.close()
 
     train = problem.train
     residuals = {name: (fit.predicted - problem.measured)[train] for name, fit in fits.items()}
@@ -277,6 +289,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
                     {n: fits[n].holdout_loss for n in laws}, selection)
     chosen["bic"] = bics
+    tracker.close(chosen["selected"])
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
@@ -328,6 +341,24 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
             "unit": "N"}
 
 
+def _expected_simulations(stages: tuple[Stage, ...], names: list[str], state: dict, size_estimate: bool
+                          ) -> dict[str, int]:
+    """The simulations each task of an identification is expected to spend (``progress``), what the checkpoint
+    ``state`` holds left out: the start (ladder and shear-rate probes), each model's fit on each stage (one start,
+    revised when its jobs are handed out) and the magnitude estimate."""
+    expected = {"start": (0 if "ladder" in state else len(LADDER_VISCOSITIES))
+                + (0 if "effective_shear_rate" in state else SHEAR_RATE_PROBES)}
+    for index, stage in enumerate(stages):
+        for name in names:
+            if name not in state["done"].get(stage.name, {}):
+                size = 1 if name == "corotated" else FitModel.named(name).size
+                budget = stage.iterations + (SECANT_STEPS if index > 0 and size == 1 else 0)
+                expected[f"{stage.name}/{name}"] = fit_simulations(size, budget, index > 0)
+    if size_estimate and "magnitude" not in state:
+        expected["magnitude"] = MAGNITUDE_STEPS + 1
+    return expected
+
+
 def recording_label(recording: Recording) -> str:
     """How a checkpoint names its recording: its directory (or name)."""
     return str(recording.path) if recording.path else (recording.name or "(unnamed)")
@@ -356,37 +387,3 @@ def _load_checkpoint(path: str | Path | None, settings: dict, label: str, overwr
         raise OutputError(f"{path}: the checkpoint was written with other settings ({', '.join(changed)}); use "
                           "another out= or overwrite=true")
     return state
-
-
-class _Tracker:
-    """Progress bar over the forward simulations a fit may spend, and TensorBoard scalars per iteration."""
-
-    def __init__(self, names: list[str], max_iterations: int, progress: bool, log_dir: str | Path | None):
-        sizes = {"newtonian": 1, "corotated": 1}
-        budget = len(LADDER_VISCOSITIES) + 1 + sum((max_iterations + 2) * (sizes.get(n, 4) + 1) for n in names)
-        self.bar = None
-        if progress:
-            from tqdm.auto import tqdm
-            self.bar = tqdm(total=budget, unit="sim", desc="identify")
-        self.writer = None
-        if log_dir is not None:
-            from torch.utils.tensorboard import SummaryWriter
-            self.writer = SummaryWriter(str(log_dir))
-
-    def evaluation(self, name: str, count: int, loss: float) -> None:
-        if self.bar is not None:
-            self.bar.set_description(f"identify {name}")
-            self.bar.set_postfix(loss=f"{loss:.3g} N")
-            self.bar.update(1)
-
-    def iteration(self, name: str, iteration: int, loss: float, params: dict[str, float]) -> None:
-        if self.writer is not None:
-            self.writer.add_scalar(f"loss/{name}", loss, iteration)
-            for key, value in params.items():
-                self.writer.add_scalar(f"{name}/{key}", value, iteration)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-        if self.writer is not None:
-            self.writer.close()

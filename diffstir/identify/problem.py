@@ -188,7 +188,8 @@ class StirProblem:
         recording: the recording.
         config: the simulator's resolution and numerics.
         density: the fluid's density [kg/m³].
-        windows: the fitted and held-out samples (default: the whole recording, nothing held out).
+        windows: the fitted and held-out samples (default: the whole recording, nothing held out, whatever it
+            reads: a blank recording replays its rod path).
         max_samples: at most this many measured samples are compared (evenly thinned; the force is resampled
             from the simulation, so thinning loses nothing the simulation resolves).
     """
@@ -198,7 +199,7 @@ class StirProblem:
         self.recording = recording
         self.config = config
         self.density = float(density)
-        self.windows = windows or Windows.of(recording, None, 0.0)
+        self.windows = windows or Windows(float(recording.t[0]), float(recording.t[-1]), float(recording.t[-1]))
         self.max_samples = max_samples
         self.rig = rig_from_recording(recording)
         self.trajectory = trajectory_from_recording(recording, self.windows.end)
