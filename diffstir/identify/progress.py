@@ -74,11 +74,11 @@ class Progress:
         self.spent[task] = self.spent.get(task, 0) + 1
         if law is not None and loss is not None and math.isfinite(loss):
             self.best[law] = min(self.best.get(law, math.inf), loss)
-        if self.bar is not None:
+        if self.bar is not None:  # one redraw per simulation, by ``update``
             self.bar.total = self.total
-            self.bar.set_description(f"identify {task}")
+            self.bar.set_description(f"identify {task}", refresh=False)
             if law in self.best:
-                self.bar.set_postfix_str(f"best {law} loss {self.best[law]:.3g} N")
+                self.bar.set_postfix_str(f"best {law} loss {self.best[law]:.3g} N", refresh=False)
             self.bar.update(1)
 
     def finished(self, task: str) -> None:
@@ -112,6 +112,6 @@ class Progress:
             self.writer.close()
 
     def _refresh(self) -> None:
+        """The bar's total follows the estimate; it is drawn at the next simulation."""
         if self.bar is not None:
             self.bar.total = self.total
-            self.bar.refresh()
