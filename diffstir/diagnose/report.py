@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..identify.report import format_interval
+from ..identify.report import format_param
 from ..plots import pyplot, save_figure
 from ..report_files import write_summary
 from .pipeline import Diagnosis
@@ -51,8 +51,7 @@ def markdown(summary: dict) -> str:
         if row.get("score") is None:
             lines.append(f"| {row['effect']} | - | - | - | - | not fitted: {row['note']} | 0 |")
             continue
-        params = "; ".join(f"{k} = {v:.4g} {row['units'][k]} {format_interval(row['ci95'][k])}"
-                           for k, v in row["params"].items())
+        params = "; ".join(format_param(k, v, row["units"][k], row["ci95"][k]) for k, v in row["params"].items())
         if row.get("warning"):
             params += f" (**{row['warning']}**)"
         lines.append(f"| {row['effect']} | {row['score']:.1f} | {row['probability']:.2f} | {row['loss_before']:.4g} "

@@ -72,8 +72,7 @@ def markdown(summary: dict) -> str:
     if summary.get("baseline"):
         rows["corotated (baseline)"] = summary["baseline"]
     for name, law in rows.items():
-        params = "; ".join(f"{k} = {v:.4g} {law['units'][k]} {format_interval(law['ci95'][k])}"
-                           for k, v in law["params"].items())
+        params = "; ".join(format_param(k, v, law["units"][k], law["ci95"][k]) for k, v in law["params"].items())
         holdout = "-" if law["holdout_loss"] is None else f"{law['holdout_loss']:.4g}"
         lines.append(f"| {name} | {law['loss']:.4g} | {holdout} | {law['bic']:.1f} | {params} |")
     lines += ["", "Rankings: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in
@@ -83,6 +82,12 @@ def markdown(summary: dict) -> str:
               f"{summary['simulation']['dim']}-D, dx = {summary['simulation']['dx']} m; {summary['seconds']:.0f} s.",
               ""]
     return "\n".join(lines)
+
+
+def format_param(name: str, value: float, unit: str, interval: list | None) -> str:
+    """``name = value unit [lower, upper]`` for a table (no unit for a dimensionless one), or "not identifiable"
+    in place of the interval."""
+    return f"{name} = {value:.4g}{'' if unit == '1' else ' ' + unit} {format_interval(interval)}"
 
 
 def format_interval(interval: list | None) -> str:
