@@ -152,7 +152,9 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
         density = identification.density["value"]
     else:
         law, density, source = law_from_report(identification)
-    problem = StirProblem(recording, config, density, Windows.of(recording, window, 0.0))
+    windows = Windows.of(recording, window, 0.0)
+    windows.dead_start.require_signal()
+    problem = StirProblem(recording, config, density, windows)
     if isinstance(identification, Identification):
         base = base_from_identification(identification, problem)
     else:

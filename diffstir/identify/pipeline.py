@@ -177,6 +177,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)
+    windows.dead_start.require_signal()
     problem = StirProblem(recording, config, density_report["value"], windows)
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
     sensor = SensorNuisance(tuple(sensor_nuisance))

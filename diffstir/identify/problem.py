@@ -47,10 +47,16 @@ class DeadStart:
 
     detected: bool
     until: float
+    silent: str | None = None
 
     def summary(self) -> dict:
         """The report's ``dead_start``: {"detected", "until_s"} [s]."""
         return {"detected": self.detected, "until_s": self.until}
+
+    def require_signal(self) -> None:
+        """Raise ``RecordingError`` when the reading holds one value throughout: the sensor recorded no force."""
+        if self.silent is not None:
+            raise RecordingError(self.silent)
 
 
 def dead_start(rec: Recording) -> DeadStart:
@@ -63,17 +69,18 @@ def dead_start(rec: Recording) -> DeadStart:
     which the rod moves (faster than ``MOVING_SHARE`` of its top speed) with a chance below ``DEAD_START_CHANCE``,
     and when it is more than twice as long as any later stretch that holds one value: a one-sided sensor reads
     zero while the force points away from it, every stirring period for as long, the first time a little longer
-    while the force rises from rest. A reading that holds one value throughout is refused: the sensor recorded no
-    force (a ``RecordingError`` naming the file and the ``force`` column).
+    while the force rises from rest. A reading that holds one value throughout has no dead start; ``silent`` then
+    names the file and the ``force`` column for ``DeadStart.require_signal``.
     """
     force, t = rec.force, rec.t
     step = rec.sensor.resolution or 0.0
     tolerance = step / 2.0  # N
     changed = np.flatnonzero(np.abs(force - force[0]) > tolerance)
     if changed.size == 0:
-        raise RecordingError(f"{rec.source('csv')}: column 'force' reads {force[0]:g} N throughout"
-                             + (f" (within its resolution of {step:g} N)" if step else "")
-                             + "; the sensor recorded no force")
+        return DeadStart(detected=False, until=float(t[0]),
+                         silent=f"{rec.source('csv')}: column 'force' reads {force[0]:g} N throughout"
+                                + (f" (within its resolution of {step:g} N)" if step else "")
+                                + "; the sensor recorded no force")
     woke = int(changed[0])  # the first live sample
     speed = np.linalg.norm(rec.velocity(), axis=1)
     moving = int(np.count_nonzero(speed[:woke] > MOVING_SHARE * speed.max())) if speed.max() > 0 else 0
