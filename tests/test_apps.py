@@ -178,3 +178,15 @@ def test_a_checkpoint_of_another_recording_in_out_is_refused_in_one_line(tmp_pat
     assert_refused(done, "diffstir-fit", f"{out / 'checkpoint.json'} holds a fit of recording another")
     assert (out / "checkpoint.json").read_text() == other and sorted(p.name for p in out.iterdir()) == [
         "checkpoint.json"]
+
+
+def test_a_recordings_warning_is_one_line_naming_the_app(tmp_path):
+    recording = tmp_path / "rec"
+    shutil.copytree(EXAMPLE, recording)
+    yaml_path = recording / "recording.yaml"
+    yaml_path.write_text(yaml_path.read_text() + "operator: ada\n")  # an unknown field: read, warned of, kept
+    done = run("diffstir-fit", f"recording={recording}", "rectifier.checkpoint=missing.ckpt", cwd=tmp_path)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 2, done.stderr[-3000:]
+    assert lines[0].startswith("diffstir-fit: warning: ") and "operator" in lines[0]
+    assert lines[1].startswith("diffstir-fit: error: ")

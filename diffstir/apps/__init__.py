@@ -13,6 +13,7 @@ import os
 import re
 import signal
 import sys
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -144,6 +145,21 @@ def _remove_empty_run_dir() -> None:
         run_dir.rmdir()
 
 
+def _one_line_warnings(name: str) -> Callable:
+    """A ``warnings.showwarning`` that prints the project's own warnings as ``<name>: warning: <message>`` in one
+    line (where in diffstir's code they were raised says nothing to a user) and others as Python does."""
+    package = str(Path(__file__).resolve().parents[1])
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        if str(Path(filename).resolve()).startswith(package):
+            print(f"{name}: warning: {' '.join(str(message).split())}", file=file or sys.stderr, flush=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], None]], Callable[[], None]]:
     """Decorate an app's task function ``task(cfg)`` into the console entry point ``name`` (e.g. ``diffstir-fit``)
     composed from ``conf/<config_name>.yaml``; see the module docstring."""
@@ -172,6 +188,7 @@ def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], Non
             if not OmegaConf.has_resolver("run_folder"):
                 OmegaConf.register_new_resolver("run_folder", run_folder)
             handlers = {sig: signal.signal(sig, _raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
+            warnings.showwarning = _one_line_warnings(name)
             try:
                 hydra_main()
             except KeyboardInterrupt as stop:

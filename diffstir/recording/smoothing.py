@@ -51,6 +51,9 @@ FINEST_STEP = 1e-9
 #: The residual of pure rounding is q / sqrt(12) within a few per cent for n ≥ 100 samples; beyond this factor the
 #: residual holds jitter (or the smoothing's bias) and ``smooth_path`` reports it.
 JITTER_FACTOR = 1.5
+#: Jitter is reported when a path through the raw samples would move the rod this much faster or slower than the
+#: arm [1 of the mean speed]: sqrt(2) σ / h, the speed noise of a difference of two samples h apart.
+JITTER_SPEED_SHARE = 0.01
 
 
 def _reinsch_bands(h: np.ndarray):
@@ -213,8 +216,13 @@ class SmoothPath:
         return max(f.velocity_noise(h) for f in self.axes)
 
     def jitter_message(self, where: str) -> str | None:
-        """One line stating the jitter removed, when it exceeds the rounding of the data (``where``: the source)."""
+        """One line stating the jitter removed, when it exceeds the rounding of the data and would change the
+        replayed speed by more than ``JITTER_SPEED_SHARE`` of its mean (``where``: the source)."""
         if self.jitter <= JITTER_FACTOR * self.step / math.sqrt(12.0):
+            return None
+        h = float(np.median(np.diff(self.t)))
+        mean_speed = float(np.mean(self.speed(self.t)))
+        if math.sqrt(2.0) * self.jitter / h <= JITTER_SPEED_SHARE * mean_speed:
             return None
         return (f"{where}: columns 'x', 'y' carry {self.jitter * 1e6:.3g} µm rms of position jitter, more than "
                 f"their {self.step * 1e6:.3g} µm steps explain; the rod is replayed along the smoothing spline of "
