@@ -175,3 +175,21 @@ def test_a_path_whose_jitter_leaves_the_replayed_speed_alone_raises_no_warning(j
         warnings.simplefilter("always")
         through_samples(t, xy, where="run-1/stir.csv")
     assert not [w for w in caught if issubclass(w.category, RecordingWarning)]
+
+
+def test_a_recordings_velocity_is_the_arms_not_the_jitters():
+    # what the tangential sensor's direction, the plausibility checks and the dead-start test read of the rod
+    t, xy, true_speed = recorded(CIRCLE, 0.5, 1000.0, 30e-6, 1e-6)
+    rec = path_recording(t, xy)
+    steady = (t > 0.7) & (t < t[-1] - 0.2)
+    velocity = rec.velocity()
+    direction = velocity[steady] / np.linalg.norm(velocity[steady], axis=-1, keepdims=True)
+    true_direction = np.gradient(recorded(CIRCLE, 0.5, 1000.0, 0.0, 0.0)[1], t, axis=0)[steady]
+    true_direction /= np.linalg.norm(true_direction, axis=-1, keepdims=True)
+    # a difference of raw samples carries sqrt(2) σ / h = 0.042 m/s of noise, 85 % of the speed; the arm's path
+    # carries the smoothing spline's velocity noise, bounded in the replay test above by 3 %
+    cosine = np.sum(direction * true_direction, axis=-1)
+    assert np.degrees(np.arccos(np.clip(cosine, -1, 1))).max() < 3.0
+    speed_error = np.linalg.norm(velocity[steady], axis=-1) / true_speed[steady] - 1
+    assert np.sqrt(np.mean(speed_error**2)) < 0.03
+    np.testing.assert_array_equal(rec.velocity(), velocity)  # computed once, the same each call

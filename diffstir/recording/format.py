@@ -144,6 +144,7 @@ class Recording:
     extra_meta: dict = field(default_factory=dict)
     extra_columns: dict[str, np.ndarray] = field(default_factory=dict)
     path: Path | None = None
+    _velocity: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in REQUIRED_COLUMNS + OPTIONAL_COLUMNS:
@@ -160,11 +161,18 @@ class Recording:
         return out
 
     def velocity(self) -> np.ndarray:
-        """Rod axis velocity [m/s], shape (N, 2): v_i = second-order central difference on non-uniform t
-        (np.gradient), one-sided first-order at the two ends."""
+        """Rod axis velocity [m/s], shape (N, 2), at the samples: the derivative of the rod path as the arm moved,
+        each coordinate's GCV smoothing spline (``diffstir.recording.smoothing``), so that position jitter and
+        rounding do not reach the speed or the tangential sensor's direction. Computed once per path."""
         if self.t.size < 2:
             raise RecordingError(f"{self.source('csv')}: velocity needs at least 2 rows, got {self.t.size}")
-        return np.stack([np.gradient(self.x, self.t), np.gradient(self.y, self.t)], axis=-1)
+        key = hash((self.t.tobytes(), self.x.tobytes(), self.y.tobytes()))
+        if self._velocity is None or self._velocity[0] != key:
+            from diffstir.recording.smoothing import smooth_path
+
+            path = smooth_path(self.t, np.stack([self.x, self.y], axis=-1))
+            self._velocity = (key, path.velocity(self.t))
+        return self._velocity[1].copy()
 
     @property
     def duration(self) -> float:
