@@ -240,6 +240,18 @@ def test_two_reads_of_the_slope_combine_by_inverse_variance_and_widen_where_they
     assert "scale factor 6.00" in wide.source
 
 
+def test_a_recording_without_a_steady_speed_is_refused_before_any_simulation(monkeypatch):
+    def simulated(*args, **kwargs):
+        raise AssertionError("simulated before every recording's windows were found")
+
+    monkeypatch.setattr("diffstir.behaviour.pipeline.window_viscosity", simulated)
+    t = np.linspace(0.0, 3.0, 601)
+    phase = 2.0 * t**2  # rad: no 0.3 s at one speed (as above)
+    unsteady = path_recording(t, 0.015 * np.cos(phase), 0.015 * np.sin(phase))
+    with pytest.raises(RecordingError, match="one speed"):
+        characterise([programme_recording(), unsteady], config=FAST, density=1000.0)
+
+
 def test_characterise_refuses_an_unknown_slope_test_before_simulating():
     recording = programme_recording()
     with pytest.raises(ValueError, match="behaviour.slope_test = 'index'; expected one of"):

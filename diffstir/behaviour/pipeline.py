@@ -107,11 +107,12 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         raise ValueError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law to "
                          f"behaviour.joint_models (got {list(joint_models)})")
     rho = combined_density(recordings, density)
+    windows = [speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window, pause_speed=pause_speed)
+               for rec in recordings]  # every recording's, before the first simulation
     points: list[ViscosityPoint] = []
-    for rec in recordings:
+    for recording_windows in windows:
         guess = None
-        for window in speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window,
-                                    pause_speed=pause_speed):
+        for window in recording_windows:
             points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations,
                                            model_error=model_error))
             guess = points[-1].viscosity
