@@ -65,6 +65,17 @@ def test_a_programme_over_a_wide_range_of_speeds_keeps_its_slowest_and_drops_a_p
         speed_windows(rec, pause_speed=-1.0)
 
 
+def test_a_fast_small_circle_written_to_a_micrometre_holds_its_window():
+    # 0.12 m/s on a 6 mm circle at 200 Hz: GCV keeps the interpolating spline, whose speed still carries the 1 µm
+    # rounding, sqrt(2) (q / sqrt(12)) / h = 0.08 mm/s per sample; the rate is read over a span long enough for it
+    traj = stirring_programme([{"speed": 0.12, "duration": 0.45}], radius=0.006, ramp_time=RAMP, sample_rate=200.0)
+    xy = np.round(traj.xy, 6)
+    (window,) = speed_windows(path_recording(traj.t, xy[:, 0], xy[:, 1]))
+    assert window.speed == pytest.approx(0.12, rel=1e-3)
+    # it ends within the rate's span of the record's end, 5 sqrt(2) σ_v 0.3 s / (0.05 × 0.12 m/s) = 0.029 s
+    assert window.start < RAMP + 0.02 and window.end > traj.t[-1] - 0.03
+
+
 def test_a_recording_without_a_steady_speed_is_refused():
     t = np.linspace(0.0, 3.0, 601)
     phase = 2.0 * t**2  # rad: the speed grows as 4 R t, by 5 % in 0.3 s only after 6 s

@@ -211,9 +211,12 @@ class SmoothPath:
     @property
     def speed_noise(self) -> float:
         """rms noise [m/s] of ``speed``, at most: the larger of the two axes' velocity noise (the speed error is the
-        velocity error along the path, which turns from one axis to the other)."""
+        velocity error along the path, which turns from one axis to the other), and at least the noise that the
+        positions' rounding (σ = q / sqrt(12)) leaves on the difference of two samples h apart, sqrt(2) σ / h:
+        where GCV keeps the interpolating spline, that rounding is still in the samples it passes through."""
         h = float(np.median(np.diff(self.t)))
-        return max(f.velocity_noise(h) for f in self.axes)
+        rounding = math.sqrt(2.0) * self.step / math.sqrt(12.0) / h
+        return max(rounding, *(f.velocity_noise(h) for f in self.axes))
 
     def jitter_message(self, where: str) -> str | None:
         """One line stating the jitter removed, when it exceeds the rounding of the data and would change the
