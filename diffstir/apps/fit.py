@@ -22,6 +22,7 @@ from diffstir.behaviour.pipeline import SLOPE_TESTS
 from diffstir.errors import ConfigError, OutputError
 from diffstir.identify import identify
 from diffstir.identify.nuisance import NUISANCES
+from diffstir.identify.uncertainty import checked_model_error
 from diffstir.identify.report import write_report
 from diffstir.identify.selection import CRITERIA
 from diffstir.mixing import analyse_mixing, write_mixing_report
@@ -65,12 +66,6 @@ def main(cfg: DictConfig) -> None:
         diagnose_if_poor(result, cfg, out)
 
 
-def check_model_error(setting: str, value) -> None:
-    """Raise ConfigError unless ``value`` is a relative force error in [0, 1)."""
-    if not (isinstance(value, (int, float)) and 0.0 <= value < 1.0):
-        raise ConfigError(f"{setting} = {value!r}; expected a relative force error in [0, 1)")
-
-
 def check_fit_settings(cfg: DictConfig) -> None:
     """Raise ConfigError for a setting the fit would refuse only after simulating: the laws, the optimizer, the
     selection criterion, the sensor nuisances."""
@@ -80,7 +75,7 @@ def check_fit_settings(cfg: DictConfig) -> None:
     check_choices("fit.sensor_nuisance", list(cfg.fit.sensor_nuisance), NUISANCES)
     check_at_least("fit.max_iterations", cfg.fit.max_iterations, 1)
     check_at_least("fit.fine_iterations", cfg.fit.fine_iterations, 0)
-    check_model_error("fit.model_error", cfg.fit.model_error)
+    checked_model_error(cfg.fit.model_error, "fit.model_error")
     if cfg.fit.sensor_nuisance and cfg.fit.optimizer != "lm":
         raise ConfigError(f"fit.sensor_nuisance = {list(cfg.fit.sensor_nuisance)} needs fit.optimizer = lm "
                           f"(got {cfg.fit.optimizer!r})")
@@ -135,7 +130,7 @@ def refined_viscosity(result, path: Path) -> dict:
 def behaviour(cfg: DictConfig) -> None:
     """``experiment=behaviour``: classify the fluid of ``recordings`` (docs/behaviour.md)."""
     b = cfg.behaviour
-    check_model_error("behaviour.model_error", b.model_error)
+    checked_model_error(b.model_error, "behaviour.model_error")
     check_at_least("behaviour.iterations", b.iterations, 1)
     check_choices("behaviour.joint_models", list(b.joint_models), sorted(LAWS))
     check_choice("behaviour.slope_test", b.slope_test, SLOPE_TESTS)
@@ -165,7 +160,7 @@ def mixing(cfg: DictConfig) -> None:
     if len(cfg.recordings) != 1:
         raise ConfigError(f"recordings = {list(cfg.recordings)}; experiment=mixing analyses one recording")
     m = cfg.mixing
-    check_model_error("mixing.model_error", m.model_error)
+    checked_model_error(m.model_error, "mixing.model_error")
     check_at_least("mixing.iterations", m.iterations, 1)
     if len(m.viscosities) != 2 or min(m.viscosities) <= 0:
         raise ConfigError(f"mixing.viscosities = {list(m.viscosities)}; expected [eta1, eta2] in Pa·s, both "

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
 from .models import FitModel
 
 Z95 = 1.959963984540054
@@ -45,9 +46,9 @@ COARSE_FORCE_ERROR = 0.063
 
 
 def checked_model_error(value: float, field: str) -> float:
-    """``value`` if it is a relative force error σ_m in [0, 1); otherwise a ValueError that names ``field``."""
-    if not (math.isfinite(value) and 0.0 <= value < 1.0):
-        raise ValueError(f"{field} = {value!r}; expected a relative force error in [0, 1)")
+    """``value`` if it is a relative force error σ_m in [0, 1); otherwise a ConfigError that names ``field``."""
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value < 1.0):
+        raise ConfigError(f"{field} = {value!r}; expected a relative force error in [0, 1)")
     return value
 
 
