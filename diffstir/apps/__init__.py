@@ -74,8 +74,20 @@ def recording_key(root: DictConfig) -> str:
     ``recordings``) of the config ``root``, joined by ``+``."""
     node = root._get_node("recording")
     paths = [root.recording] if node is not None and not node._is_missing() else list(root.get("recordings", []))
-    return "+".join(f"{Path(str(p)).resolve().name}-{recording_digest(load_recording(to_absolute_path(str(p))))[:8]}"
-                    for p in paths)
+    keys = []
+    for p in paths:
+        path = Path(to_absolute_path(str(p))).resolve()
+        stamps = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(path.glob("*"))
+                       if f.is_file()) if path.is_dir() else ()
+        keys.append(f"{path.name}-{_digest_prefix(path, stamps)}")
+    return "+".join(keys)
+
+
+@functools.lru_cache(maxsize=None)
+def _digest_prefix(path: Path, stamps: tuple) -> str:
+    """The first 8 hex digits of the recording's content digest at ``path``, loaded once per state of its files
+    (``stamps``: name, modification time and size of each): the config resolves ``out`` more than once."""
+    return recording_digest(load_recording(path))[:8]
 
 
 def run_folder(parent: str, *, _root_: DictConfig) -> str:
