@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -39,3 +40,18 @@ def write_summary(out: str | Path, stem: str, summary: Mapping, markdown: str | 
         paths["md"] = out / f"{stem}.md"
         paths["md"].write_text(markdown)
     return paths
+
+
+def write_text_atomically(path: str | Path, text: str) -> None:
+    """Replace ``path`` by ``text`` (UTF-8) in one step: a temporary file in the same folder, fsync, os.replace; a
+    failed or interrupted write leaves the old file as it was."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as file:
+            file.write(text)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -28,7 +28,7 @@ from ..mpm.config import NUMERICS
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
 from ..recording.digest import recording_digest
-from ..report_files import finite_or_none
+from ..report_files import finite_or_none, write_text_atomically
 from ..rheology import LAWS
 from .family import law_family
 from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate,
@@ -191,9 +191,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     def save() -> None:
         if checkpoint is not None:
             Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
-            tmp = Path(checkpoint).with_suffix(".tmp")
-            tmp.write_text(json.dumps(state))
-            tmp.replace(checkpoint)
+            write_text_atomically(checkpoint, json.dumps(state))
 
     def on_event(event: tuple) -> None:
         """A job's event (``jobs``): progress and TensorBoard, and its last iterate into the checkpoint."""

@@ -10,7 +10,6 @@ rod's immersion depth [m] to get the force on the rod [N] (an extruded slice: no
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -26,7 +25,7 @@ from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import (
     CupGeometry, DensityMeasurement, Recording, RodGeometry, load_recording, save_recording, validate_recording,
 )
-from diffstir.report_files import to_json
+from diffstir.report_files import to_json, write_text_atomically
 from diffstir.rig import Rig
 from diffstir.trajectory import Trajectory
 
@@ -220,9 +219,7 @@ def write_lab_recording(lab: LabRecording, path: str | Path, *, overwrite: bool 
         raise FileExistsError(f"{truth_file}: already exists; pass overwrite=True to replace it")
     save_recording(lab.recording, path, overwrite=overwrite)
     load_recording(path)
-    tmp = truth_file.with_name(f".{truth_file.name}.{os.getpid()}.tmp")
-    tmp.write_text(to_json(lab.truth), encoding="utf-8")
-    os.replace(tmp, truth_file)
+    write_text_atomically(truth_file, to_json(lab.truth))
     return path, truth_file
 
 

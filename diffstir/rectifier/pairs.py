@@ -23,7 +23,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 import traceback
 from collections.abc import Mapping
@@ -41,6 +40,7 @@ from diffstir.lab import (
     stirring_programme,
 )
 from diffstir.mpm import SimConfig
+from diffstir.report_files import write_text_atomically
 from diffstir.rheology import LAWS, within_bounds
 from diffstir.rig import Rig
 
@@ -319,9 +319,7 @@ def _update_references(path: Path, group: Mapping, log) -> None:
             rate = group_shear_rate(group, eta)
             eta = float(law(torch.tensor([rate], dtype=torch.float64)).item())
         r.update(reference_viscosity=eta, effective_shear_rate=rate, shear_rate_method=group["shear_rate_method"])
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("".join(json.dumps(r) + "\n" for r in lines), encoding="utf-8")
-    tmp.replace(path)
+    write_text_atomically(path, "".join(json.dumps(r) + "\n" for r in lines))
     log(f"shard {group['shard']}: references of {len(stale)} pairs recomputed at the group's effective shear rates")
 
 
@@ -420,7 +418,7 @@ def collect(design: PairDesign, out: str | Path) -> dict:
         lines += records
     lines.sort(key=lambda r: r["pair_id"])
     text = "".join(json.dumps(r, sort_keys=True) + "\n" for r in lines)
-    _write_atomically(out / "pairs.jsonl", text)
+    write_text_atomically(out / "pairs.jsonl", text)
     truth_seconds = {r["fluid_id"]: r["truth_seconds"] for r in lines}
     manifest = {
         "format": PAIRS_FORMAT, "design": _plain(asdict(design)), "design_digest": design.digest(),
@@ -432,22 +430,8 @@ def collect(design: PairDesign, out: str | Path) -> dict:
                                    for s in range(design.shards) if ShardPaths.of(out, s).group.exists()),
         "shards": shards,
     }
-    _write_atomically(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
+    write_text_atomically(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
     return manifest
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Replace ``path`` by ``text`` (UTF-8) in one step: a temporary file in the same folder, fsync, os.replace; a
-    failed write leaves the old file as it was."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as file:
-            file.write(text)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def design_from_mapping(cfg: Mapping) -> PairDesign:
