@@ -250,7 +250,7 @@ def _rigid_modes(x: np.ndarray) -> np.ndarray:
 
 
 def solve(rig_mesh: RigMesh, law=1.0, speed: float = 0.1, *, motion: str = "stir", density: float = 1000.0,
-          inertia: bool = False, tol: float = 1e-6, max_iterations: int = 60, solver: str = "auto",
+          inertia: bool = False, tol: float = 1e-4, max_iterations: int = 60, solver: str = "auto",
           relaxation: float = 1.0, verbose: bool = False) -> Result:
     """The steady flow and the rod's force, torque and dissipation.
 
@@ -357,7 +357,7 @@ def solve(rig_mesh: RigMesh, law=1.0, speed: float = 0.1, *, motion: str = "stir
         else:
             mass = asm(weighted_mass, pressure, eta=eta)
             guess = None if iterations == 1 else previous[free]
-            solution[free], used = _krylov(system, b, stiffness, mass, free, fixed_u, n_u, velocity, inertia, guess,
+            solution[free], used = _krylov(system, b, momentum, mass, free, fixed_u, n_u, velocity, inertia, guess,
                                            verbose)
         peak = max(peak, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
         change = np.linalg.norm(solution[:n_u] - u) / max(np.linalg.norm(solution[:n_u]), 1e-300)
@@ -394,6 +394,7 @@ def _krylov(system, b, stiffness, mass, free, fixed_u, n_u, velocity, nonsymmetr
     mask = sp.diags(keep)
     viscous = (mask @ stiffness @ mask + sp.diags(1.0 - keep)).tobsr(blocksize=(3, 3))
     hierarchy = pyamg.smoothed_aggregation_solver(viscous, B=_rigid_modes(velocity.doflocs), max_coarse=2000,
+                                                  symmetry="nonsymmetric" if nonsymmetric else "hermitian",
                                                   strength=("symmetric", {"theta": 0.0}), smooth="jacobi")
     cycle = hierarchy.aspreconditioner(cycle="V")
     free_u = free[free < n_u]
@@ -668,8 +669,8 @@ def main() -> None:
 def run_check(name: str, args) -> None:
     """Print one check's table rows (``--check``)."""
     start = time.time()
-    print("| check | computed | reference | ratio | dofs (u + p) | time [s] |")
-    print("|---|---|---|---|---|---|")
+    print("| check | computed | reference | ratio | dofs (u + p) | time [s] | peak memory [GiB] |")
+    print("|---|---|---|---|---|---|---|")
     if name == "convergence":
         rig = Rig(args.cup_radius, args.fill, args.rod_radius, args.gap, args.orbit)
         viscosity = args.viscosity or 1.0
@@ -677,8 +678,10 @@ def run_check(name: str, args) -> None:
         for cell, r in rows:
             print(f"| drag, paper's rig, {viscosity:g} Pa·s, {args.speed:g} m/s, cell {cell * 1e3:g} mm [N] | "
                   f"{r.drag:.6g} | {extrapolated:.6g} (extrapolated) | {r.drag / extrapolated:.5f} | "
-                  f"{r.n_velocity} + {r.n_pressure} | {r.seconds:.0f} |")
-        print(f"observed order {order:.2f}; finest mesh's error {abs(rows[-1][1].drag / extrapolated - 1):.2%}")
+                  f"{r.n_velocity} + {r.n_pressure} | {r.seconds:.0f} | {r.memory_gib:.1f} |")
+        second = rows[-1][1].drag + (rows[-1][1].drag - rows[-2][1].drag) / ((rows[0][0] / rows[1][0]) ** 2 - 1)
+        print(f"observed order {order:.2f}; finest mesh's error {abs(rows[-1][1].drag / extrapolated - 1):.3%} "
+              f"(against the order-2 extrapolation {second:.6g}: {abs(rows[-1][1].drag / second - 1):.3%})")
         return
     if name == "transient2d":
         sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -692,11 +695,12 @@ def run_check(name: str, args) -> None:
                                     ("radial force", steady.radial, transient["radial"][late].mean())):
             print(f"| {label}, 2-D stir, 0.2 Pa·s, 0.1 m/s, e = 15 mm, steady slab against the transient "
                   f"scripts/stir_reference.py from 0.9 s [N/m] | {ours:.5g} | {theirs:.5g} | {ours / theirs:.4f} | "
-                  f"{steady.n_velocity} + {steady.n_pressure} | {time.time() - start:.0f} |")
+                  f"{steady.n_velocity} + {steady.n_pressure} | {time.time() - start:.0f} | "
+                  f"{steady.memory_gib:.1f} |")
         return
     for label, computed, reference, result in check(name, args.cell, args.viscosity or 1.0, 0.01, args.verbose):
         print(f"| {label} | {computed:.6g} | {reference:.6g} | {computed / reference:.5f} | "
-              f"{result.n_velocity} + {result.n_pressure} | {result.seconds:.0f} |")
+              f"{result.n_velocity} + {result.n_pressure} | {result.seconds:.0f} | {result.memory_gib:.1f} |")
 
 
 if __name__ == "__main__":

@@ -113,3 +113,16 @@ def test_krylov_solver_agrees_with_the_direct_one():
     krylov = ref.solve(mesh, 1.0, 0.1, solver="krylov")
     assert krylov.drag == pytest.approx(direct.drag, rel=1e-6)
     assert krylov.torque == pytest.approx(direct.torque, rel=1e-4, abs=1e-9)
+
+
+def test_inertial_slab_matches_the_2d_reference_at_steady_state():
+    """Navier-Stokes in the turning frame (Picard): the 2-D stir of docs/validation.md (cup 42.5 mm, rod on a 15 mm
+    circle at 0.1 m/s, 1 Pa·s, Re = 2.5) as a slab on 4 mm cells against the transient 2-D reference's steady drag
+    3.3678 N/m and radial force +0.3038 N/m (converged to 0.02 %). The drag within the issue's 2 %; the radial
+    force, an inertial force a tenth of the drag, converges as h^2.1 (4.2 % low on 6 mm cells, 0.4 % on 2 mm), so
+    within twice its 4 mm estimate 4.2 % × (4/6)², 3.7 %."""
+    rig = ref.Rig(cup_radius=0.0425, orbit=0.015)
+    result = ref.slab_force(rig, 0.004, 1.0, 0.1, inertia=True)
+    assert result.drag == pytest.approx(3.3678, rel=0.02)
+    assert result.radial == pytest.approx(0.3038, rel=2 * 0.042 * (4 / 6) ** 2)
+    assert 2 < result.iterations < 20
