@@ -95,15 +95,16 @@ def test_power_law_couette_torque():
 
 def test_stir_in_the_cup_dissipates_the_drags_work():
     """In Stokes flow the rod's power is the fluid's dissipation, drag × U = ∫ 2η D:D dV; the discrete reaction
-    keeps it to round-off. The paper's rig on 6 mm cells, 1 Pa·s at 0.1 m/s: the 3-D drag lies below the slice's
-    F' h (the tip's end and the free surface shorten the effective rod) but within a factor 2 of it."""
+    keeps it to round-off. The paper's rig on 6 mm cells, 1 Pa·s at 0.1 m/s; its rod is h/a = 8.4 radii long, so
+    the tip's and the free surface's end effects move the drag from the slice's F' h by a few per cent (1.6 % on
+    converged meshes, docs/validation.md), within 10 % here."""
     mesh = ref.build_mesh(PAPER, 0.006)
     assert {name: len(mesh.mesh.boundaries[name]) > 0 for name in ref.BOUNDARIES} == dict.fromkeys(ref.BOUNDARIES,
                                                                                                     True)
     result = ref.solve(mesh, 1.0, 0.1)
     assert result.dissipation == pytest.approx(result.drag * 0.1, rel=1e-6)
     slab = ref.slab_force(PAPER, 0.006, 1.0, 0.1)
-    assert 0.5 < result.drag / (slab.drag * PAPER.immersion) < 1.5
+    assert result.drag / (slab.drag * PAPER.immersion) == pytest.approx(1.0, abs=0.1)
 
 
 def test_krylov_solver_agrees_with_the_direct_one():
