@@ -122,7 +122,7 @@ def _gmsh_mesh(build, cell: float, growth: float, rig: Rig, classify) -> tuple[n
     """Run gmsh on the OCC model ``build`` makes; nodes (3, N), tets (4, M) and {name: triangles (3, K)}."""
     import gmsh
 
-    gmsh.initialize(["-noenv"], readConfigFiles=False)
+    gmsh.initialize(readConfigFiles=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", 1)
@@ -163,7 +163,7 @@ def _gmsh_mesh(build, cell: float, growth: float, rig: Rig, classify) -> tuple[n
     renumber[used] = np.arange(len(used))
     faces = {name: renumber[np.concatenate(parts, axis=1)] if parts else np.zeros((3, 0), dtype=np.int64)
              for name, parts in triangles.items()}
-    return points[:, used], tets, faces
+    return np.ascontiguousarray(points[:, used]), np.ascontiguousarray(tets), faces
 
 
 def _tag(points: np.ndarray, tets: np.ndarray, faces: dict, rig: Rig, cell: float, thickness=None) -> RigMesh:
