@@ -369,6 +369,9 @@ def solve(rig_mesh: RigMesh, law=1.0, speed: float = 0.1, *, motion: str = "stir
         if (newtonian and not inertia) or (change < tol and abs(drag - drag_old) <= tol * abs(drag)):
             break
         drag_old = drag
+    else:
+        raise RuntimeError(f"the fixed point did not converge in {max_iterations} iterations (last relative change "
+                           f"{change:.1e} > tol {tol:g}); try relaxation < 1 or more iterations")
     # the pressure's mean on the free surface is the zero of pressure (the lid's normal stress)
     top = pressure.get_dofs(mesh.boundaries["surface"]).all()
     solution[n_u:] -= solution[n_u + top].mean()

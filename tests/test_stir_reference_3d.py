@@ -127,3 +127,12 @@ def test_inertial_slab_matches_the_2d_reference_at_steady_state():
     assert result.drag == pytest.approx(3.3678, rel=0.02)
     assert result.radial == pytest.approx(0.3038, rel=2 * 0.042 * (4 / 6) ** 2)
     assert 2 < result.iterations < 20
+
+
+def test_a_fixed_point_that_has_not_converged_raises():
+    """A shear-thinning law stopped after two Picard steps reports it rather than returning a force."""
+    from diffstir.rheology import PowerLaw
+
+    _, mesh = centred(0.008)
+    with pytest.raises(RuntimeError, match="did not converge in 2 iterations"):
+        ref.solve(mesh, PowerLaw(k=1.0, n=0.6, shear_rate_reg=1e-6), 0.01, motion="spin", max_iterations=2)
