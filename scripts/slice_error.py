@@ -148,7 +148,7 @@ def mpm_drag(sim_name: str, duration: float, rig_name: str = "paper_e25", viscos
 
 def fit(table: Path, out: Path, command: str) -> dict:
     """Least squares of the factor 1 + ℓ a / h, ℓ = c · ``diffstir.slice_correction.features``, over the table's
-    rows; σ the residuals' root mean square (relative, with the fit's degrees of freedom)."""
+    rows; σ the relative residuals' root mean square over the fit's degrees of freedom (rows − coefficients)."""
     import numpy as np
 
     from diffstir.slice_correction import FEATURES, GROUPS, features
@@ -160,7 +160,7 @@ def fit(table: Path, out: Path, command: str) -> dict:
     design = np.array([features(g) / g["h_over_a"] for g in dimensionless])
     target = np.array([r["ratio"] - 1.0 for r in rows])
     coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
-    residual = target - design @ coefficients
+    residual = (target - design @ coefficients) / (1.0 + target)  # relative to the factor
     sigma = float(np.sqrt((residual**2).sum() / (len(rows) - len(FEATURES))))
     result = {"description": "F_3D / (F'_2D h) = 1 + ell a / h, ell = coefficients . features "
                              "(diffstir/slice_correction.py); sigma: the factor's relative 1-sigma uncertainty",

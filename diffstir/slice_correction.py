@@ -1,0 +1,105 @@
+"""The slice's error: the 3-D force on the rod over the 2-D slice's force per length times the immersion.
+
+A 2-D slice gives the force per length F'_2D [N/m] of the rig's cross-section; the rod in a real cup feels F_3D [N].
+Their ratio, from the 3-D finite-element study (``scripts/slice_error.py``, docs/accuracy.md, The slice's error),
+is modelled as a tip that adds an effective length a ℓ to the immersion h:
+
+    F_3D = F'_2D (h + a ℓ),    factor = F_3D / (F'_2D h) = 1 + ℓ a / h,
+    ℓ = c_1 + c_2 a/g + c_3 R/a + c_4 (1 − n) + c_5 Re,
+
+with R the cup's radius, a the rod's, e the circle's, g = H − h the tip's gap above the bottom [m], n the flow
+index [1] and Re = ρ U 2a / η [1]: the flow that escapes round the tip (a negative constant), the shear under the
+tip (a disc at height g over the bottom adds about η U π a² / g), the cup's size (a wide cup makes the 2-D force per
+length small, about 1 / ln(R/a), so the tip's share larger), shear thinning and inertia. The coefficients c, their residual scatter σ (the 1-σ relative
+uncertainty of the factor) and the swept ranges are read from ``diffstir/data/slice_correction.json``, which
+records the command that fitted them, the date and the machine.
+
+Outside the swept ranges each group is clamped to the nearest swept value (h/a only from below: the tip's added
+length does not depend on h once h ≫ a, the end effect's form) and σ widens to sqrt(σ² + (factor − 1)²) (1 + D),
+D the summed distance of the clamped groups from their range in ln units (ln(1 + Re) for Re): there the model's form
+is untested, so the whole correction is as uncertain as its size, growing with the extrapolation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+TABLE = Path(__file__).resolve().parent / "data" / "slice_correction.json"
+FEATURES = ("one", "a_over_g", "R_over_a", "one_minus_n", "reynolds")
+GROUPS = ("h_over_a", "g_over_a", "wall_gap_over_a", "e_over_R", "R_over_a", "n", "reynolds")
+
+
+@dataclass(frozen=True)
+class SliceCorrection:
+    factor: float  # F_3D / (F'_2D h) [1]
+    sigma: float  # its relative 1-sigma uncertainty [1]
+    inside: bool  # the rig, flow index and Reynolds number within the swept ranges
+
+
+def groups(cup_radius: float, fill_height: float, rod_radius: float, immersion_depth: float, orbit_radius: float,
+           flow_index: float = 1.0, reynolds: float = 0.0) -> dict:
+    """The dimensionless rig {h/a, g/a, (R − e − a)/a, e/R, R/a, n, Re}; lengths [m]."""
+    for name, value in (("cup_radius", cup_radius), ("fill_height", fill_height), ("rod_radius", rod_radius),
+                        ("immersion_depth", immersion_depth), ("orbit_radius", orbit_radius)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} = {value!r} m; expected a positive length in m")
+    if not (math.isfinite(flow_index) and flow_index > 0):
+        raise ValueError(f"flow_index = {flow_index!r}; expected a positive power-law index (1 Newtonian)")
+    if not (math.isfinite(reynolds) and reynolds >= 0):
+        raise ValueError(f"reynolds = {reynolds!r}; expected rho U 2a / eta >= 0 (dimensionless)")
+    if orbit_radius + rod_radius >= cup_radius:
+        raise ValueError(f"orbit_radius = {orbit_radius} m: the rod (rod_radius = {rod_radius} m) does not fit in the "
+                         f"cup (cup_radius = {cup_radius} m); expected orbit_radius + rod_radius < cup_radius in m")
+    if immersion_depth >= fill_height:
+        raise ValueError(f"immersion_depth = {immersion_depth} m reaches the bottom (fill_height = {fill_height} m); "
+                         f"expected immersion_depth < fill_height in m")
+    a = rod_radius
+    return {"h_over_a": immersion_depth / a, "g_over_a": (fill_height - immersion_depth) / a,
+            "wall_gap_over_a": (cup_radius - orbit_radius - a) / a, "e_over_R": orbit_radius / cup_radius,
+            "R_over_a": cup_radius / a, "n": float(flow_index), "reynolds": float(reynolds)}
+
+
+def features(g: dict) -> np.ndarray:
+    """The model's regressors (``FEATURES``) of the dimensionless rig ``g`` (``groups``): ℓ = c · features."""
+    return np.array([1.0, 1.0 / g["g_over_a"], g["R_over_a"], 1.0 - g["n"], g["reynolds"]])
+
+
+@lru_cache(maxsize=1)
+def _table() -> dict:
+    return json.loads(TABLE.read_text())
+
+
+def _distance(name: str, value: float, clamped: float) -> float:
+    if name == "reynolds":
+        return abs(math.log1p(value) - math.log1p(clamped))
+    return abs(math.log(value / clamped))
+
+
+def slice_correction(cup_radius: float, fill_height: float, rod_radius: float, immersion_depth: float,
+                     orbit_radius: float, flow_index: float = 1.0, reynolds: float = 0.0) -> SliceCorrection:
+    """F_3D / (F'_2D h) of a rod of radius ``rod_radius`` immersed ``immersion_depth`` in fluid ``fill_height`` deep
+    in a cup of radius ``cup_radius``, its axis on a circle of ``orbit_radius`` (all [m]), for a power law's
+    ``flow_index`` n [1] (1: Newtonian) at ``reynolds`` ρ U 2a / η [1], with its relative 1-σ uncertainty (the
+    module's docstring has the model, its source and range)."""
+    g = groups(cup_radius, fill_height, rod_radius, immersion_depth, orbit_radius, flow_index, reynolds)
+    table = _table()
+    clamped, distance = dict(g), 0.0
+    for name in GROUPS:
+        low, high = table["ranges"][name]
+        if name == "h_over_a":
+            high = math.inf
+        clamped[name] = min(max(g[name], low), high)
+        distance += _distance(name, g[name], clamped[name])
+    ell = float(np.dot(table["coefficients"], features(clamped)))
+    factor = 1.0 + ell / g["h_over_a"]
+    sigma = float(table["sigma"])
+    inside = distance < 1e-9  # round-off of the table's lengths
+    if not inside:
+        sigma = math.hypot(sigma, factor - 1.0) * (1.0 + distance)
+    return SliceCorrection(factor, sigma, inside)
