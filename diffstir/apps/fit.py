@@ -26,6 +26,7 @@ from diffstir.identify.uncertainty import checked_model_error
 from diffstir.identify.report import write_report
 from diffstir.identify.selection import CRITERIA
 from diffstir.mixing import analyse_mixing, write_mixing_report
+from diffstir.mixing.track import time_windows
 from diffstir.recording import load_recording
 from diffstir.rheology import LAWS
 
@@ -168,6 +169,7 @@ def mixing(cfg: DictConfig) -> None:
     if not 0.0 < float(m.fraction) < 1.0:
         raise ConfigError(f"mixing.fraction = {m.fraction}; expected fluid 1's volume fraction in (0, 1)")
     recording = load_recording(to_absolute_path(str(cfg.recordings[0])))
+    time_windows(recording, m.window)  # a time course's windows, before the output folder and any simulation
     config = instantiate(cfg.sim)
     out = Run.writes(Path(to_absolute_path(str(cfg.out))))
     refuse_existing(out, "report.json", cfg.overwrite)

@@ -20,7 +20,7 @@ from ..plots import pyplot, save_figure
 from ..recording import Recording
 from ..report_files import write_summary
 from .rule import blend_range, implied_alpha
-from .track import Approach, fit_approach, track_viscosity
+from .track import Approach, fit_approach, time_windows, track_viscosity
 
 
 @dataclass
@@ -72,6 +72,7 @@ def analyse_mixing(recording: Recording, *, config: SimConfig, viscosities: tupl
     started = time.perf_counter()
     eta1, eta2 = (float(v) for v in viscosities)
     blend_range(eta1, eta2, fraction)  # checks the components before the simulations
+    time_windows(recording, window)  # and that the recording holds a time course
     rho = combined_density([recording], density)
     points = track_viscosity(recording, config, rho["value"], window, iterations=iterations, model_error=model_error)
     times = [0.5 * (p.window.start + p.window.end) for p in points]

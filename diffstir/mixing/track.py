@@ -32,21 +32,32 @@ import numpy as np
 from scipy import optimize
 
 from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows, window_viscosity
+from ..errors import ConfigError
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..recording import Recording
 
 
+#: Windows the time course needs: the approach's three parameters and one degree of freedom (``fit_approach``).
+MIN_WINDOWS = 4
+
+
 def time_windows(recording: Recording, window: float) -> list[SpeedWindow]:
     """Consecutive windows of ``window`` [s] (the last one of a stretch may be up to 1.5 times longer) over the
-    recording's steady-speed stretches."""
+    recording's steady-speed stretches; a recording with fewer than ``MIN_WINDOWS`` of them is refused
+    (``ConfigError`` naming the recording and ``mixing.window``), before any simulation."""
     if not window > 0:
-        raise ValueError(f"mixing.window = {window}; expected a positive duration in s")
-    out = []
+        raise ConfigError(f"mixing.window = {window}; expected a positive duration in s")
+    out, steady = [], 0.0
     for stretch in speed_windows(recording, min_duration=window):
         count = max(1, int((stretch.end - stretch.start) / window))
         edges = np.linspace(stretch.start, stretch.end, count + 1)
         out += [SpeedWindow(recording, float(a), float(b), stretch.speed) for a, b in zip(edges[:-1], edges[1:])]
+        steady += stretch.end - stretch.start
+    if len(out) < MIN_WINDOWS:
+        raise ConfigError(f"{recording.source('csv')}: {len(out)} windows of mixing.window = {window:g} s in its "
+                          f"{steady:.3g} s of steady stirring; the time course needs at least {MIN_WINDOWS}: record "
+                          f"at least {MIN_WINDOWS * window:g} s at one speed, or shorten mixing.window")
     return out
 
 
@@ -97,8 +108,9 @@ def fit_approach(times, viscosity, log_std, systematic: float = 0.0) -> Approach
     t, eta, s = (np.asarray(v, dtype=np.float64) for v in (times, viscosity, log_std))
     if not systematic >= 0.0:
         raise ValueError(f"mixing: systematic = {systematic!r}; expected a standard error of ln eta >= 0")
-    if t.size < 4:
-        raise ValueError(f"mixing: {t.size} windows; the time course needs at least 4 (shorten mixing.window)")
+    if t.size < MIN_WINDOWS:
+        raise ValueError(f"mixing: {t.size} windows; the time course needs at least {MIN_WINDOWS} (shorten "
+                         "mixing.window)")
     if not (np.all(eta > 0) and np.all(np.isfinite(s)) and np.all(s > 0)):
         raise ValueError("mixing: every window's viscosity (Pa s) and its standard error must be finite and > 0")
     y, t0, span = np.log(eta), float(t[0]), float(t[-1] - t[0])
