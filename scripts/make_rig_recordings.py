@@ -8,7 +8,7 @@ diffstir/data/examples/ (each with its truth file beside it; docs/virtual-lab.md
 | rig_jitter_1khz | carreau_example | 15 mm circle, 0.10 m/s, 1.0 s | rig_tracker_1khz: 30 um position jitter, 1 kHz |
 | rig_dead_start | carreau_example | 15 mm circle, 0.10 m/s, 1.5 s | rig_thin_film_1khz: one-sided, 0.4 s dead start |
 | rig_behaviour_slow, _mid, _fast | carreau_example | 6 mm circle at 0.03, 0.06, 0.12 m/s, 1.4, 0.8, 0.55 s | rig_encoder_200hz: 1 um |
-| rig_blend | 1.0 and 0.1 Pa s Newtonian, half each | 15 mm circle, 0.08 m/s, 1.5 s | rig_encoder_200hz |
+| rig_blend | 1.0 and 0.1 Pa s Newtonian, half each | 15 mm circle, 0.08 m/s, 2.4 s (four 0.5 s windows of the default mixing experiment) | rig_encoder_200hz |
 
 The truth simulation is the lab's default (conf/lab/sim/truth2d.yaml, 2 mm cells) in the paper's rig
 (conf/rig/paper.yaml); seed 0 for each. The blend is scripts/mixing_example.py's (α = 0.6, core layout, 0.3 mixing
@@ -56,7 +56,7 @@ RECORDINGS = {
     "rig_behaviour_slow": (_programme(0.006, 0.03, 1.4), "rig_encoder_200hz", None),
     "rig_behaviour_mid": (_programme(0.006, 0.06, 0.8), "rig_encoder_200hz", None),
     "rig_behaviour_fast": (_programme(0.006, 0.12, 0.55), "rig_encoder_200hz", None),
-    "rig_blend": (_programme(0.015, 0.08, 1.5), "rig_encoder_200hz", BLEND),
+    "rig_blend": (_programme(0.015, 0.08, 2.4), "rig_encoder_200hz", BLEND),
 }
 
 

@@ -74,10 +74,10 @@ def test_experiment_settings_missing_values_and_other_apps_are_refused_in_one_li
 
 
 def test_a_blend_recording_too_short_for_the_mixing_time_course_is_refused_before_simulating(tmp_path):
-    blend = ROOT / "diffstir" / "data" / "examples" / "rig_blend"  # 1.5 s: two 0.5 s windows after the ramp
-    done = run("diffstir-fit", "experiment=mixing", f"recordings=[{blend}]", "mixing.viscosities=[1.0,0.1]",
+    short = ROOT / "diffstir" / "data" / "examples" / "rig_behaviour_mid"  # 0.8 s: one 0.5 s window after the ramp
+    done = run("diffstir-fit", "experiment=mixing", f"recordings=[{short}]", "mixing.viscosities=[1.0,0.1]",
                "mixing.fraction=0.5", "out=mixing", cwd=tmp_path, timeout=60)
-    assert_refused(done, "diffstir-fit", f"{blend / 'stir.csv'}: 2 windows of mixing.window = 0.5 s")
+    assert_refused(done, "diffstir-fit", f"{short / 'stir.csv'}: 1 window of mixing.window = 0.5 s")
     assert "at least 4" in done.stderr and not any(tmp_path.iterdir())
 
 

@@ -55,9 +55,10 @@ def time_windows(recording: Recording, window: float) -> list[SpeedWindow]:
         out += [SpeedWindow(recording, float(a), float(b), stretch.speed) for a, b in zip(edges[:-1], edges[1:])]
         steady += stretch.end - stretch.start
     if len(out) < MIN_WINDOWS:
-        raise ConfigError(f"{recording.source('csv')}: {len(out)} windows of mixing.window = {window:g} s in its "
-                          f"{steady:.3g} s of steady stirring; the time course needs at least {MIN_WINDOWS}: record "
-                          f"at least {MIN_WINDOWS * window:g} s at one speed, or shorten mixing.window")
+        raise ConfigError(f"{recording.source('csv')}: {len(out)} window{'' if len(out) == 1 else 's'} of "
+                          f"mixing.window = {window:g} s in its {steady:.3g} s of steady stirring; the time course "
+                          f"needs at least {MIN_WINDOWS}: record at least {MIN_WINDOWS * window:g} s at one speed, "
+                          "or shorten mixing.window")
     return out
 
 
