@@ -5,19 +5,21 @@ Their ratio, from the 3-D finite-element study (``scripts/slice_error.py``, docs
 is modelled as a tip that adds an effective length a ℓ to the immersion h:
 
     F_3D = F'_2D (h + a ℓ),    factor = F_3D / (F'_2D h) = 1 + ℓ a / h,
-    ℓ = c_1 + c_2 a/g + c_3 R/a + c_4 (1 − n) + c_5 Re,
+    ℓ = c_1 + c_2 a/g + c_3 R/a + c_4 (1 − n) g/a + c_5 Re,
 
 with R the cup's radius, a the rod's, e the circle's, g = H − h the tip's gap above the bottom [m], n the flow
 index [1] and Re = ρ U 2a / η [1]: the flow that escapes round the tip (a negative constant), the shear under the
 tip (a disc at height g over the bottom adds about η U π a² / g), the cup's size (a wide cup makes the 2-D force per
-length small, about 1 / ln(R/a), so the tip's share larger), shear thinning and inertia. The coefficients c, their residual scatter σ (the 1-σ relative
+length small, about 1 / ln(R/a), so the tip's share larger), shear thinning (its effect grows with the room under
+the tip, where the escaping flow thins) and inertia. The coefficients c, their residual scatter σ (the 1-σ relative
 uncertainty of the factor) and the swept ranges are read from ``diffstir/data/slice_correction.json``, which
 records the command that fitted them, the date and the machine.
 
-Outside the swept ranges each group is clamped to the nearest swept value (h/a only from below: the tip's added
-length does not depend on h once h ≫ a, the end effect's form) and σ widens to sqrt(σ² + (factor − 1)²) (1 + D),
-D the summed distance of the clamped groups from their range in ln units (ln(1 + Re) for Re): there the model's form
-is untested, so the whole correction is as uncertain as its size, growing with the extrapolation.
+Outside the swept ranges each group is clamped to the nearest swept value and σ widens; h/a above its range counts
+as inside (the tip's added length a ℓ does not depend on h once h ≫ a, so 1 + ℓ a / h holds there). σ widens to
+sqrt(σ² + (factor − 1)²) (1 + D), D the summed distance of the clamped groups from their range in ln units
+(ln(1 + Re) for Re): there the model's form is untested, so the whole correction is as uncertain as its size,
+growing with the extrapolation.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 TABLE = Path(__file__).resolve().parent / "data" / "slice_correction.json"
-FEATURES = ("one", "a_over_g", "R_over_a", "one_minus_n", "reynolds")
+FEATURES = ("one", "a_over_g", "R_over_a", "one_minus_n_times_g_over_a", "reynolds")
 GROUPS = ("h_over_a", "g_over_a", "wall_gap_over_a", "e_over_R", "R_over_a", "n", "reynolds")
 
 
@@ -67,7 +69,7 @@ def groups(cup_radius: float, fill_height: float, rod_radius: float, immersion_d
 
 def features(g: dict) -> np.ndarray:
     """The model's regressors (``FEATURES``) of the dimensionless rig ``g`` (``groups``): ℓ = c · features."""
-    return np.array([1.0, 1.0 / g["g_over_a"], g["R_over_a"], 1.0 - g["n"], g["reynolds"]])
+    return np.array([1.0, 1.0 / g["g_over_a"], g["R_over_a"], (1.0 - g["n"]) * g["g_over_a"], g["reynolds"]])
 
 
 @lru_cache(maxsize=1)

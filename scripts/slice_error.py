@@ -233,7 +233,11 @@ def main() -> None:
             rig = RIGS[name]
             for viscosity, speed in INERTIA[name]:
                 reynolds = DENSITY * speed * 2 * rig.rod_radius / viscosity
-                result = forces(rig, viscosity, speed, COARSE_CELL, COARSE_CELL, True)
+                try:
+                    result = forces(rig, viscosity, speed, COARSE_CELL, COARSE_CELL, True)
+                except RuntimeError as error:  # a Picard iteration that does not converge leaves no row
+                    print(f"{name}: η {viscosity} Pa s, U {speed} m/s, Re {reynolds:.3g}: {error}", flush=True)
+                    continue
                 rows.append(row(name, rig, {"name": "newtonian", "viscosity_pa_s": viscosity}, speed, reynolds,
                                 result, factors[name]))
                 write(args.out, rows, command)
