@@ -10,7 +10,7 @@ from acceptance_commands import example, full_only, ok, run, truth
 
 from diffstir.lab import Fluid
 
-pytestmark = [pytest.mark.acceptance, full_only]
+pytestmark = pytest.mark.acceptance
 
 
 def truth_viscosity(name: str, shear_rate: float) -> float:
@@ -23,6 +23,7 @@ def truth_viscosity(name: str, shear_rate: float) -> float:
         return float(law(torch.tensor([shear_rate], dtype=torch.float64)))
 
 
+@full_only
 @pytest.mark.parametrize("name", ["rig_jitter_1khz", "rig_dead_start"])
 def test_fit_reads_density_and_viscosity_within_its_intervals(name, tmp_path):
     result = ok(run("diffstir-fit", f"recording={example(name)}", "out=fit", cwd=tmp_path, timeout=1800))
@@ -39,6 +40,7 @@ def test_fit_reads_density_and_viscosity_within_its_intervals(name, tmp_path):
         assert "dead start" in (result.stdout + result.stderr + (tmp_path / "fit" / "report.md").read_text()).lower()
 
 
+@full_only
 def test_behaviour_classifies_three_constant_speed_stirs_at_200_hz(tmp_path):
     recordings = ",".join(example(f"rig_behaviour_{s}") for s in ("slow", "mid", "fast"))
     ok(run("diffstir-fit", "experiment=behaviour", f"recordings=[{recordings}]", "out=behaviour", cwd=tmp_path,
