@@ -50,9 +50,11 @@ RIGS = {  # cup radius R, fill H, rod radius a, gap g (tip above the bottom), ci
     "mid": ref.Rig(cup_radius=0.0475, fill=0.080, rod_radius=0.0125, gap=0.020, orbit=0.015),
     "small_cup": ref.Rig(cup_radius=0.040, fill=0.050, rod_radius=0.010, gap=0.010, orbit=0.020),
     "paper_e25": ref.Rig(cup_radius=0.0475, fill=0.125, rod_radius=0.0125, gap=0.020, orbit=0.025),
+    # the project's default rig (conf/rig/paper.yaml) on a 15 mm circle
+    "project": ref.Rig(cup_radius=0.0425, fill=0.13005, rod_radius=0.0125, gap=0.05005, orbit=0.015),
 }
 
-POWER_LAW_RIGS = ("paper", "shallow")
+POWER_LAW_RIGS = ("paper", "shallow", "project")
 FLOW_INDICES = (0.4, 0.7, 1.4)
 INERTIA = {  # rig: [(η [Pa s], U [m/s])], Re = ρ U 2a / η from 0.1 to 30
     "paper": [(10.0, 0.04), (1.0, 0.1), (0.3, 0.1), (0.1, 0.12)],
