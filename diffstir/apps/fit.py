@@ -25,8 +25,7 @@ from diffstir.identify.nuisance import NUISANCES
 from diffstir.identify.uncertainty import checked_model_error
 from diffstir.identify.report import write_report
 from diffstir.identify.selection import CRITERIA
-from diffstir.mixing import analyse_mixing, write_mixing_report
-from diffstir.mixing.track import time_windows
+from diffstir.mixing import analyse_mixing, time_windows, write_mixing_report
 from diffstir.recording import load_recording
 from diffstir.rheology import LAWS
 

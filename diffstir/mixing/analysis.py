@@ -72,9 +72,9 @@ def analyse_mixing(recording: Recording, *, config: SimConfig, viscosities: tupl
     started = time.perf_counter()
     eta1, eta2 = (float(v) for v in viscosities)
     blend_range(eta1, eta2, fraction)  # checks the components before the simulations
-    time_windows(recording, window)  # and that the recording holds a time course
+    windows = time_windows(recording, window)  # and that the recording holds a time course
     rho = combined_density([recording], density)
-    points = track_viscosity(recording, config, rho["value"], window, iterations=iterations, model_error=model_error)
+    points = track_viscosity(windows, config, rho["value"], iterations=iterations, model_error=model_error)
     times = [0.5 * (p.window.start + p.window.end) for p in points]
     approach = fit_approach(times, [p.viscosity for p in points], [p.log_std for p in points],
                             systematic=points[-1].model_log_std)

@@ -170,12 +170,12 @@ def _constant(t: np.ndarray, y: np.ndarray, s: np.ndarray, systematic: float) ->
                     homogeneity_time=float(t[0]), homogeneity_time_ci95=(math.nan, math.nan), birge=birge)
 
 
-def track_viscosity(recording: Recording, config: SimConfig, density: float, window: float, *,
+def track_viscosity(windows: list[SpeedWindow], config: SimConfig, density: float, *,
                     iterations: int = 3, model_error: float = MODEL_FORCE_ERROR) -> list[ViscosityPoint]:
-    """The apparent viscosity of each ``window``-second window of ``recording`` (module docstring), with
+    """The apparent viscosity of each of a recording's ``windows`` (``time_windows``; module docstring), with
     ``model_error`` the relative force error of ``config`` (``behaviour.window_viscosity``)."""
     points: list[ViscosityPoint] = []
-    for w in time_windows(recording, window):
+    for w in windows:
         points.append(window_viscosity(w, config, density, guess=points[-1].viscosity if points else None,
                                        iterations=iterations, model_error=model_error))
     return points
