@@ -4,6 +4,7 @@ grid."""
 
 import json
 import math
+import re
 import sys
 
 import numpy as np
@@ -330,10 +331,10 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
     assert result.density["source"].startswith("archimedes")
 
 
-def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
+def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings, capsys):
     result = characterise([lab_recordings["thinning"]], config=FAST, iterations=2,
                           joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50, workers=2,
-                          slope_test="joint_index")
+                          slope_test="joint_index", progress=True)
     c = result.classification
     # Metzner-Otto: a power law's Newtonian-equivalent viscosity goes as U^(n-1) in creeping flow; inertia and the
     # capped far field flatten it, so the per-speed slope only has to be negative; the joint fit, through the same
@@ -354,6 +355,13 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings):
     assert points.slope.value == pytest.approx(c.slope.value) and points.estimate is None
     combined = reclassify(summary, slope_test="combined", replicates=50)
     assert combined.estimate.source.startswith("points and joint power law index combined")
+    # the progress summary counts the windows' simulations and the joint fits' (from the worker processes), the
+    # kept fits' at least: the screens and the starts not kept add to them
+    line = re.search(r"^behaviour: (\d+) simulations in .+; shear_thinning \(confidence \d\.\d\d\)$",
+                     capsys.readouterr().out, re.MULTILINE)
+    assert line is not None
+    windows = sum(p.evaluations for p in result.points)
+    assert int(line[1]) >= windows + sum(f.evaluations for f in joint.fits.values())
     # the laws were fitted in two worker processes, as FitJobs on diffstir.parallel.Workers, whose results equal
     # those fitted in one process (test_identify's test_models_fitted_in_parallel_processes_equal_those_fitted_in_one)
 

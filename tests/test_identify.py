@@ -567,7 +567,7 @@ def test_progress_counts_simulations_against_an_estimate_revised_as_fits_finish(
     progress.finished("fit/carreau/start0")
     progress.finished("fit/carreau/start1")  # restored from a checkpoint: nothing spent
     assert progress.total == progress.done == 29
-    assert re.fullmatch(r"identify: 29 simulations in \d+\.\d s; selected carreau", progress.summary("carreau"))
+    assert re.fullmatch(r"identify: 29 simulations in \d+\.\d s; selected carreau", progress.summary("selected carreau"))
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@ courses), the exponential approach and the mixing experiment of the fit app."""
 
 import json
 import math
+import re
 import sys
 
 import numpy as np
@@ -146,7 +147,7 @@ def test_homogeneity_time_interval_covers_the_truth_about_95_percent_of_the_time
     assert 0.95 - 4 * 0.015 <= hits / trials <= 1.0
 
 
-def test_mixing_experiment_writes_the_report(blend_lab, tmp_path, monkeypatch):
+def test_mixing_experiment_writes_the_report(blend_lab, tmp_path, monkeypatch, capsys):
     from diffstir.apps.fit import main
 
     blend, lab = blend_lab
@@ -165,6 +166,10 @@ def test_mixing_experiment_writes_the_report(blend_lab, tmp_path, monkeypatch):
     assert ETA2 < m["blend_viscosity"] < ETA1
     assert m["lederer_roegiers"]["range"] == pytest.approx(list(blend_range(ETA1, ETA2, blend.fraction)))
     assert (out / "time_course.png").stat().st_size > 0
+    # the progress bar's summary counts every window's simulations
+    simulations = sum(p["evaluations"] for p in m["time_course"])
+    assert re.search(rf"^mixing: {simulations} simulations in .+; {len(course)} windows$", capsys.readouterr().out,
+                     re.MULTILINE)
 
 
 def test_synth_app_writes_a_two_fluid_recording_and_its_mixing_truth(tmp_path, monkeypatch):

@@ -147,7 +147,7 @@ def behaviour(cfg: DictConfig) -> None:
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, pause_speed=b.pause_speed,
                           replicates=b.replicates, seed=b.seed, model_error=b.model_error,
-                          slope_test=b.slope_test, workers=config_workers(cfg))
+                          slope_test=b.slope_test, workers=config_workers(cfg), progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     b = result.summary()["behaviour"]
@@ -173,7 +173,8 @@ def mixing(cfg: DictConfig) -> None:
     out = Run.writes(Path(to_absolute_path(str(cfg.out))))
     refuse_existing(out, "report.json", cfg.overwrite)
     result = analyse_mixing(recording, config=config, viscosities=tuple(m.viscosities), fraction=m.fraction,
-                            window=m.window, density=cfg.density, iterations=m.iterations, model_error=m.model_error)
+                            window=m.window, density=cfg.density, iterations=m.iterations, model_error=m.model_error,
+                            progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_mixing_report(result, out)
     a = result.approach

@@ -32,11 +32,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
 from ..identify import FitModel, StirProblem, Windows, fit_model
-from ..identify.initial import ViscosityLadder, effective_shear_rate
+from ..identify.initial import LADDER_VISCOSITIES, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate
+from ..identify.progress import fit_simulations
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples
 from ..mpm import SimConfig
 from ..recording import Recording
@@ -105,13 +107,23 @@ class ViscosityPoint:
                           "baseline": "N", "loss": "N"}}
 
 
+def window_simulations(guessed: bool, iterations: int) -> int:
+    """The simulations ``window_viscosity`` is expected to spend: the ladder's probes (two around a ``guessed``
+    viscosity, else one per ladder rung), the Newtonian fit of ``iterations`` and the effective shear rate's
+    probes."""
+    ladder = 2 if guessed else len(LADDER_VISCOSITIES)
+    return ladder + fit_simulations(1, iterations, False) + SHEAR_RATE_PROBES
+
+
 def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, guess: float | None = None,
-                     iterations: int = 3, model_error: float = MODEL_FORCE_ERROR) -> ViscosityPoint:
+                     iterations: int = 3, model_error: float = MODEL_FORCE_ERROR,
+                     on_evaluation: Callable[[float | None], None] | None = None) -> ViscosityPoint:
     """The apparent viscosity of ``window`` (see the module docstring) on the simulation ``config`` for a fluid of
     ``density`` [kg/m³]. ``guess`` [Pa·s] (a neighbouring window's viscosity) shortens the ladder to two probes a
     factor ``LADDER_FACTOR`` either side; without it the full ladder (one probe per decade) is simulated.
     ``iterations``: Gauss-Newton iterations of the Newtonian fit. ``model_error``: the relative 1-σ error σ_m of
-    ``config``'s simulated force (``identify.uncertainty``; 0 leaves it out)."""
+    ``config``'s simulated force (``identify.uncertainty``; 0 leaves it out). ``on_evaluation(loss)`` is called
+    after every simulation, with the fit's loss [N] where the simulation is the fit's, else None."""
     checked_model_error(model_error, "model_error")
     config = recording_config(config, window.recording)
     problem = StirProblem(window.recording, config, density, Windows(window.start, window.end, window.end))
@@ -120,12 +132,19 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
     def count(*_):
         nonlocal evaluations
         evaluations += 1
+        if on_evaluation is not None:
+            on_evaluation(None)
+
+    def fit_evaluation(_name, _count, loss):
+        if on_evaluation is not None:
+            on_evaluation(loss)
 
     if guess is None:
         ladder = ViscosityLadder.simulate(problem, on_evaluation=count)
     else:
         ladder = ViscosityLadder.simulate(problem, (guess / LADDER_FACTOR, guess * LADDER_FACTOR), on_evaluation=count)
-    fit = fit_model(problem, FitModel.named("newtonian", eta=ladder.estimate(problem)), max_iterations=iterations)
+    fit = fit_model(problem, FitModel.named("newtonian", eta=ladder.estimate(problem)), max_iterations=iterations,
+                    on_evaluation=fit_evaluation)
     evaluations += fit.evaluations
     train = problem.train
     log_eta, log_std, model_log_std, baseline = with_baseline(

@@ -35,6 +35,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 import torch
@@ -44,6 +45,7 @@ from ..identify import FitModel, FitResult, StirProblem, Windows
 from ..identify.jobs import FitJob, ReadingJob
 from ..identify.initial import YIELD_SHARES, initial_model
 from ..identify.nuisance import NO_NUISANCE
+from ..identify.progress import fit_simulations
 from ..identify.selection import bic, rank
 from ..identify.uncertainty import Uncertainty, laplace
 from ..mpm import SimConfig
@@ -209,12 +211,26 @@ def yield_share(model: FitModel, shear_rate: float, theta: np.ndarray | None = N
     return float(tau_y / (eta[0] * shear_rate))
 
 
+def joint_simulations(name: str, iterations: int) -> int:
+    """The joint simulations (each one of every recording) ``joint_fit`` is expected to spend on law ``name``
+    with ``iterations``: its start screen (``index_starts``), its first fit, for a yield-stress law the paste
+    screen, the paste's fit and the start from the best liquid fit, and the polish."""
+    model = FitModel.named(name)
+    count = (1 + len(INDEX_SHIFTS) if "n" in model.names else 1) + fit_simulations(model.size, iterations, False)
+    if has_yield_stress(name):
+        count += (len(PASTE_SHARES) + 1 + fit_simulations(model.size, iterations, False)
+                  + fit_simulations(model.size, LIQUID_START_ITERATIONS, False))
+    return count + fit_simulations(model.size, POLISH_ITERATIONS, False)
+
+
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,
-              models: list[str], *, iterations: int = 5, workers: int = 1, model_error: float = 0.0) -> JointFit:
+              models: list[str], *, iterations: int = 5, workers: int = 1, model_error: float = 0.0,
+              report: Callable[[tuple], None] | None = None) -> JointFit:
     """Fit each law in ``models`` to the readings of every window of ``points``, whose effective shear rates
     [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes. Each
     law's covariance holds the simulator's relative force error ``model_error`` σ_m as an error of each window's
-    amplitude, independent between windows, as the points' intervals do (``identify.uncertainty.laplace``)."""
+    amplitude, independent between windows, as the points' intervals do (``identify.uncertainty.laplace``).
+    ``report`` receives the fits' events (``identify.jobs``), whose keys start with the law's name."""
     if not models:
         raise ValueError("behaviour.joint_models is empty; name at least one law of diffstir.rheology.LAWS")
     problem = JointProblem([p.window for p in points], config, density, [p.loss for p in points])
@@ -232,7 +248,7 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
             model = initial_model(name, float(eta[middle]), float(g[middle]), yield_share=YIELD_SHARES[-1])
         points_start[name] = model
     pivot = float(np.exp(np.mean(np.log(g))))
-    with Workers(workers, report=lambda event: None) as pool:
+    with Workers(workers, report=report or (lambda event: None)) as pool:
         starts = screened_starts(pool, problem, {name: index_starts(model, pivot)
                                                  for name, model in points_start.items()})
         # a copy: a fit in this process moves its model, and a screen that kept no start returns the points' own

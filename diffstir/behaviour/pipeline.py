@@ -16,20 +16,22 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from ..density import estimate_recording_density
 from ..identify import FitModel
 from ..identify.pipeline import configured_density
+from ..identify.progress import Progress
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..recording import Recording, RecordingError
 from ..rheology import has_yield_stress
-from .apparent import ViscosityPoint, window_viscosity
+from .apparent import ViscosityPoint, window_simulations, window_viscosity
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
-from .joint import JointFit, joint_fit, yield_share
+from .joint import JointFit, joint_fit, joint_simulations, yield_share
 from .windows import PAUSE_SPEED, speed_windows
 
 #: Laws fitted to all speeds at once by default.
@@ -74,7 +76,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, pause_speed: float = PAUSE_SPEED,
                  replicates: int = 200, seed: int = 0, model_error: float = MODEL_FORCE_ERROR,
-                 slope_test: str = "combined", workers: int = 1) -> Behaviour:
+                 slope_test: str = "combined", workers: int = 1, progress: bool = False) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
@@ -98,6 +100,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
             law's n − 1 alone (needs the power law in ``joint_models``; on the 5 mm grid its interval was 4-8
             times narrower than its error on two Newtonian liquids, docs/accuracy.md).
         workers: processes that fit the joint laws side by side (``joint.joint_fit``; 1: in this process).
+        progress: show a progress bar of the simulations (``identify.progress``): one task per window and one
+            per joint law.
     """
     started = time.perf_counter()
     if not recordings:
@@ -109,31 +113,49 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     rho = combined_density(recordings, density)
     windows = [speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window, pause_speed=pause_speed)
                for rec in recordings]  # every recording's, before the first simulation
-    points: list[ViscosityPoint] = []
-    for recording_windows in windows:
-        guess = None
-        for window in recording_windows:
-            points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations,
-                                           model_error=model_error))
-            guess = points[-1].viscosity
-    used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
-    if len({round(p.speed, 6) for p in used}) < 2:
-        raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves ("
-                             + ", ".join(f"{p.window.label}: {'ok' if any(p is q for q in used) else 'not resolved'}"
-                                         for p in points) + "); stir faster or at more speeds")
-    k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
-    rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
-    result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used], replicates=replicates,
-                      seed=seed)
-    joint, index, test = None, None, None
-    if joint_models:
-        joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
-                          workers=workers, model_error=model_error)
-        slope = joint.power_law_slope()
-        index = None if slope is None else SlopeEstimate(*slope)
-        test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())), YIELD_SHARE_SIGMAS * model_error)
-    result = decide(result, index, test, slope_test)
+    expected = {label: window_simulations(k > 0, iterations)
+                for recording_windows in windows for k, label in enumerate(w.label for w in recording_windows)}
+    expected.update({f"joint {name}": joint_simulations(name, joint_iterations) for name in joint_models})
+    with Progress(expected, bar=progress, label="behaviour") as tracker:
+        points: list[ViscosityPoint] = []
+        for recording_windows in windows:
+            guess = None
+            for window in recording_windows:
+                points.append(window_viscosity(window, config, rho["value"], guess=guess, iterations=iterations,
+                                               model_error=model_error,
+                                               on_evaluation=partial(tracker.evaluation, window.label, window.label)))
+                tracker.finished(window.label)
+                guess = points[-1].viscosity
+        used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
+        if len({round(p.speed, 6) for p in used}) < 2:
+            raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves (" + ", ".join(
+                f"{p.window.label}: {'ok' if any(p is q for q in used) else 'not resolved'}" for p in points)
+                + "); stir faster or at more speeds")
+        k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
+        rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
+        result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used],
+                          replicates=replicates, seed=seed)
+        joint, index, test = None, None, None
+        if joint_models:
+            joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
+                              workers=workers, model_error=model_error, report=partial(_joint_evaluation, tracker))
+            for name in joint_models:
+                tracker.finished(f"joint {name}")
+            slope = joint.power_law_slope()
+            index = None if slope is None else SlopeEstimate(*slope)
+            test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())),
+                                    YIELD_SHARE_SIGMAS * model_error)
+        result = decide(result, index, test, slope_test)
+        tracker.close(f"{result.label} (confidence {result.confidence:.2f})")
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
+
+
+def _joint_evaluation(tracker: Progress, event: tuple) -> None:
+    """A joint fit's event (``identify.jobs``) counted against its law's task."""
+    kind, _stage, key, *data = event
+    if kind == "evaluation":
+        law = key.split("/")[0]
+        tracker.evaluation(f"joint {law}", law, data[1])
 
 
 def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int = 200, seed: int = 0,

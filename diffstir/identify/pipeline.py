@@ -288,7 +288,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
                     {n: fits[n].holdout_loss for n in laws}, selection)
     chosen["bic"] = bics
-    tracker.close(chosen["selected"])
+    tracker.close(f"selected {chosen['selected']}")
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,

@@ -1,8 +1,9 @@
-"""An identification's progress: forward simulations done against an estimate of all it will spend, revised as its
+"""A long computation's progress: forward simulations done against an estimate of all it will spend, revised as its
 tasks finish, the best loss so far of each law, and a one-line summary at the end.
 
-The work is split into tasks, each with its expected simulations: the start (the Newtonian ladder and the effective
-shear rate's probes), every fit job (a model on a stage from one start) and the magnitude estimate. A model's fit
+The work is split into tasks, each with its expected simulations. An identification's are the start (the
+Newtonian ladder and the effective shear rate's probes), every fit job (a model on a stage from one start) and the
+magnitude estimate; a behaviour or mixing analysis's are its windows and its joint fits. A model's fit
 on a stage is one task until its jobs are handed out, then one per job (``expect``). The total is the sum over
 tasks of the larger of what each is expected to spend and what it has spent; a finished task counts what it spent,
 so a fit that converges early lowers the total and one that needs more raises it.
@@ -32,9 +33,13 @@ class Progress:
         expected: each task's expected simulations, by task name.
         bar: show a progress bar.
         log_dir: TensorBoard log directory (None: no logs).
+        label: what the bar and the summary line call the computation.
     """
 
-    def __init__(self, expected: dict[str, int], *, bar: bool = False, log_dir: str | Path | None = None):
+    def __init__(self, expected: dict[str, int], *, bar: bool = False, log_dir: str | Path | None = None,
+                 label: str = "identify"):
+        self.label = label
+        self.closed = False
         self.expected = dict(expected)
         self.spent: dict[str, int] = {}
         self.finished_tasks: set[str] = set()
@@ -43,7 +48,7 @@ class Progress:
         self.bar = None
         if bar:
             from tqdm.auto import tqdm
-            self.bar = tqdm(total=self.total, unit="sim", desc="identify")
+            self.bar = tqdm(total=self.total, unit="sim", desc=label)
         self.writer = None
         if log_dir is not None:
             from torch.utils.tensorboard import SummaryWriter
@@ -76,7 +81,7 @@ class Progress:
             self.best[law] = min(self.best.get(law, math.inf), loss)
         if self.bar is not None:  # one redraw per simulation, by ``update``
             self.bar.total = self.total
-            self.bar.set_description(f"identify {task}", refresh=False)
+            self.bar.set_description(f"{self.label} {task}", refresh=False)
             if law in self.best:
                 self.bar.set_postfix_str(f"best {law} loss {self.best[law]:.3g} N", refresh=False)
             self.bar.update(1)
@@ -93,21 +98,31 @@ class Progress:
             for key, value in params.items():
                 self.writer.add_scalar(f"{name}/{key}", value, iteration)
 
-    def summary(self, selected: str) -> str:
-        """One line: simulations run, wall time, the selected law."""
+    def summary(self, outcome: str) -> str:
+        """One line: simulations run, wall time, the ``outcome`` (e.g. ``"selected carreau"``)."""
         seconds = time.perf_counter() - self.started
         minutes, rest = divmod(round(seconds), 60)
         wall = f"{minutes} min {rest} s" if minutes else f"{seconds:.1f} s"
-        return f"identify: {self.done} simulations in {wall}; selected {selected}"
+        return f"{self.label}: {self.done} simulations in {wall}; {outcome}"
 
-    def close(self, selected: str | None = None) -> None:
-        """Close the bar (printing ``summary(selected)`` below it when a law was selected) and the logs."""
+    def __enter__(self) -> "Progress":
+        return self
+
+    def __exit__(self, *_) -> None:
+        self.close()
+
+    def close(self, outcome: str | None = None) -> None:
+        """Close the bar (printing ``summary(outcome)`` below it when there is an outcome) and the logs; closing
+        again does nothing."""
+        if self.closed:
+            return
+        self.closed = True
         if self.bar is not None:
             self.bar.total = self.total
             self.bar.refresh()
             self.bar.close()
-            if selected is not None:
-                print(self.summary(selected), flush=True)
+            if outcome is not None:
+                print(self.summary(outcome), flush=True)
         if self.writer is not None:
             self.writer.close()
 

@@ -63,18 +63,20 @@ class Mixing:
 
 def analyse_mixing(recording: Recording, *, config: SimConfig, viscosities: tuple[float, float], fraction: float,
                    window: float = 0.5, density: float | None = None, iterations: int = 3,
-                   model_error: float = MODEL_FORCE_ERROR) -> Mixing:
+                   model_error: float = MODEL_FORCE_ERROR, progress: bool = False) -> Mixing:
     """Track the apparent viscosity of ``recording`` over ``window``-second windows, fit its approach to a plateau
     and compare the plateau with the Lederer-Roegiers range of the components' ``viscosities`` (η1 > η2) [Pa·s]
     at volume fraction ``fraction`` φ [1] of fluid 1. ``density`` [kg/m³]: used only without a density block.
     ``model_error``: the relative force error σ_m of ``config`` (``behaviour.window_viscosity``); the plateau's
-    interval carries it as read in the last window, where the course ends."""
+    interval carries it as read in the last window, where the course ends. ``progress``: show a progress bar of
+    the simulations (``track_viscosity``)."""
     started = time.perf_counter()
     eta1, eta2 = (float(v) for v in viscosities)
     blend_range(eta1, eta2, fraction)  # checks the components before the simulations
     windows = time_windows(recording, window)  # and that the recording holds a time course
     rho = combined_density([recording], density)
-    points = track_viscosity(windows, config, rho["value"], iterations=iterations, model_error=model_error)
+    points = track_viscosity(windows, config, rho["value"], iterations=iterations, model_error=model_error,
+                             progress=progress)
     times = [0.5 * (p.window.start + p.window.end) for p in points]
     approach = fit_approach(times, [p.viscosity for p in points], [p.log_std for p in points],
                             systematic=points[-1].model_log_std)

@@ -27,12 +27,15 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from scipy import optimize
 
 from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows, window_viscosity
+from ..behaviour.apparent import window_simulations
 from ..errors import ConfigError
+from ..identify.progress import Progress
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..recording import Recording
@@ -171,11 +174,18 @@ def _constant(t: np.ndarray, y: np.ndarray, s: np.ndarray, systematic: float) ->
 
 
 def track_viscosity(windows: list[SpeedWindow], config: SimConfig, density: float, *,
-                    iterations: int = 3, model_error: float = MODEL_FORCE_ERROR) -> list[ViscosityPoint]:
+                    iterations: int = 3, model_error: float = MODEL_FORCE_ERROR,
+                    progress: bool = False) -> list[ViscosityPoint]:
     """The apparent viscosity of each of a recording's ``windows`` (``time_windows``; module docstring), with
-    ``model_error`` the relative force error of ``config`` (``behaviour.window_viscosity``)."""
+    ``model_error`` the relative force error of ``config`` (``behaviour.window_viscosity``); ``progress`` shows a
+    progress bar of the simulations, one task per window (``identify.progress``)."""
+    expected = {w.label: window_simulations(k > 0, iterations) for k, w in enumerate(windows)}
     points: list[ViscosityPoint] = []
-    for w in windows:
-        points.append(window_viscosity(w, config, density, guess=points[-1].viscosity if points else None,
-                                       iterations=iterations, model_error=model_error))
+    with Progress(expected, bar=progress, label="mixing") as tracker:
+        for w in windows:
+            points.append(window_viscosity(w, config, density, guess=points[-1].viscosity if points else None,
+                                           iterations=iterations, model_error=model_error,
+                                           on_evaluation=partial(tracker.evaluation, w.label, w.label)))
+            tracker.finished(w.label)
+        tracker.close(f"{len(points)} windows")
     return points
