@@ -382,3 +382,15 @@ def test_behaviour_experiment_writes_the_report(lab_recordings, tmp_path, monkey
     assert b["slope_ci95"][0] <= b["slope"] <= b["slope_ci95"][1]
     assert b["slope_ci95"][1] - b["slope"] == pytest.approx(Z95 * b["slope_std"])
     assert (out / "viscosity_vs_speed.png").stat().st_size > 0 and (out / "flow_curve.png").stat().st_size > 0
+
+
+def test_recordings_windows_side_by_side_equal_those_in_one_process(lab_recordings):
+    # each recording's windows are one job (its windows in order, each ladder started from the one before); two
+    # recordings in two worker processes give the points of one process, in the recordings' order
+    recordings = [lab_recordings["newtonian"], lab_recordings["thinning"]]
+    one, two = (characterise(recordings, config=FAST, iterations=1, joint_models=(), replicates=20, workers=w)
+                for w in (1, 2))
+    assert [p.window.label for p in two.points] == [p.window.label for p in one.points]
+    assert [p.window.recording.source("csv") for p in two.points][0] == recordings[0].source("csv")
+    # one torch thread in a worker, as many as the process has here: the sums' order may differ in the last bits
+    assert [p.viscosity for p in two.points] == pytest.approx([p.viscosity for p in one.points], rel=1e-4)
