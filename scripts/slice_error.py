@@ -24,7 +24,6 @@ is refused without ``--overwrite``. Needs scikit-fem, gmsh and pyamg (``pip inst
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import json
 import os

@@ -201,8 +201,8 @@ def stir_history(directory: Path, viscosity: float = 1.0) -> None:
     reference = stir_reference(viscosity, directory)
     trajectory = circle(radius=0.015, speed=0.1, duration=1.5)
     windows = ((0.1, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.2), (1.2, 1.5))  # s
-    print(f"\n| numerics | window [s] | drag [N/m] | reference | ratio | radial [N/m] | reference | "
-          f"particles within dx/2 of the rod | dx/2 to dx |\n|---|---|---|---|---|---|---|---|---|")
+    print("\n| numerics | window [s] | drag [N/m] | reference | ratio | radial [N/m] | reference | "
+          "particles within dx/2 of the rod | dx/2 to dx |\n|---|---|---|---|---|---|---|---|---|")
     spin_up = []
     for label, config in HISTORY_CONFIGS.items():
         sim = StirringSimulator(Newtonian(eta=viscosity), RIG, config, density=1000.0)

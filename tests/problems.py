@@ -5,14 +5,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from diffstir.identify.problem import rig_from_recording, trajectory_from_recording
 from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.recording import Recording
 from diffstir.mpm.state import State
 from diffstir.rheology import Newtonian
 from diffstir.rig import Rig, Rod
+from diffstir.slice_correction import trajectory_correction
 from diffstir.trajectory import stationary
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -23,6 +27,19 @@ PAPER_RIG = Rig()
 def fitting_default() -> SimConfig:
     """The simulation the fit ends on (`conf/sim/slice2d.yaml`): the closed-form checks hold it to its word."""
     return instantiate(OmegaConf.load(Path(__file__).resolve().parents[1] / "conf/sim/slice2d.yaml"))
+
+
+def fitted_force(law, blank: Recording, config: SimConfig, density: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
+    """What the fit reads as the force of ``law`` on ``blank``'s rig and rod path: the step times [s] and the force
+    [N] (steps, 3) of the fitting simulator along the spline the fitter replays, a 2-D slice's force per length
+    times the immersion h and the slice correction C (``identify.problem``: F = F' h C)."""
+    rig, trajectory = rig_from_recording(blank), trajectory_from_recording(blank)
+    with torch.no_grad():
+        result = StirringSimulator(law, rig, config, density=density)(trajectory)
+    scale = 1.0
+    if config.dim == 2:
+        scale = blank.rod.immersion_depth * trajectory_correction(rig, law, density, trajectory, blank.t).factor
+    return result.times.double().numpy(), result.force.double().numpy() * scale
 
 
 def couette_torque_newtonian(mu: float, omega: float, a: float, b: float, length: float = 1.0) -> float:

@@ -9,7 +9,6 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 from scipy import stats
 
 from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows

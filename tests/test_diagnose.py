@@ -23,11 +23,11 @@ from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAIN
                                       reachable_rss, refrozen, screened_start, second_budget)
 from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
 from diffstir.identify import StirProblem, Windows
-from diffstir.identify.problem import rig_from_recording, trajectory_from_recording
 from diffstir.lab import first_order_lag, stirring_programme
-from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.mpm import SimConfig
 from diffstir.recording import CupGeometry, DensityMeasurement, Recording, RodGeometry, SensorSpec, sensor_reading_np
 from diffstir.rheology import Newtonian, make_law
+from problems import fitted_force
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # as tests/test_identify.py: coarse, but the same model
 NOISE = 0.002  # N
@@ -311,10 +311,7 @@ def lagged_recording(tau, eta=0.8, seed=0, durations=(0.4, 0.2, 0.4)):
     """A recording of a Newtonian fluid made with the fitting simulator, read through a first-order lag."""
     traj = programme(durations=durations)
     blank = rig_recording(traj)
-    with torch.no_grad():  # the path the fitter replays: the spline through the recorded poses
-        result = StirringSimulator(Newtonian(eta=eta), rig_from_recording(blank), FAST, density=1000.0)(
-            trajectory_from_recording(blank))
-    t, f = result.times.double().numpy(), result.force.double().numpy() * blank.rod.immersion_depth
+    t, f = fitted_force(Newtonian(eta=eta), blank, FAST)  # the path the fitter replays, F = F' h C
     force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
     reading = first_order_lag(sensor_reading_np(force, blank.velocity(), blank.sensor), 1 / RATE, tau)
     reading += np.random.default_rng(seed).normal(0.0, NOISE, reading.shape)
@@ -418,10 +415,7 @@ def test_the_diagnosis_runs_on_its_default_configuration(tmp_path, monkeypatch):
     # one period of 0.47 s at 0.08 m/s on a 6 mm circle: the shortest recording loading accepts (0.5 s)
     traj = circle(radius=0.006, speed=0.08, duration=0.5, ramp_time=0.05, sample_rate=RATE)
     blank = rig_recording(traj, name="short")
-    with torch.no_grad():
-        result = StirringSimulator(Newtonian(eta=0.8), rig_from_recording(blank), FAST, density=1000.0)(
-            trajectory_from_recording(blank))
-    t, f = result.times.double().numpy(), result.force.double().numpy() * blank.rod.immersion_depth
+    t, f = fitted_force(Newtonian(eta=0.8), blank, FAST)  # the path the fitter replays, F = F' h C
     force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
     reading = sensor_reading_np(force, blank.velocity(), blank.sensor)
     reading += np.random.default_rng(0).normal(0.0, NOISE, reading.shape)

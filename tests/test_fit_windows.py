@@ -8,15 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from diffstir.identify import StirProblem, Windows, identify
-from diffstir.identify.problem import DEAD_START_CHANCE, dead_start, rig_from_recording, trajectory_from_recording
+from diffstir.identify.problem import DEAD_START_CHANCE, dead_start
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, load_recording,
                                 sensor_reading_np)
 from diffstir.rheology import Newtonian
 from diffstir.trajectory import circle
+from problems import fitted_force
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # as tests/test_identify.py: coarse, but the same model
 CUP, ROD = CupGeometry(radius=0.0425, fill_height=0.13), RodGeometry(radius=0.0125, immersion_depth=0.08)
@@ -112,10 +112,7 @@ def test_a_fit_after_a_dead_start_reads_the_live_signal_and_reports_the_dead_sta
     sensor = SensorSpec(mode="tangential", resolution=0.001, sample_rate=250)
     blank = Recording(cup=CUP, rod=ROD, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                       force=np.zeros(traj.t.size), name="waking")
-    with torch.no_grad():
-        result = StirringSimulator(Newtonian(eta=eta), rig_from_recording(blank), FAST, density=1000.0)(
-            trajectory_from_recording(blank))
-    t, f = result.times.double().numpy(), result.force.double().numpy() * ROD.immersion_depth
+    t, f = fitted_force(Newtonian(eta=eta), blank, FAST)  # the path the fitter replays, F = F' h C
     force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
     reading = sensor_reading_np(force, blank.velocity(), sensor)
     reading += np.random.default_rng(0).normal(0.0, noise, reading.shape)

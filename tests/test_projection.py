@@ -8,7 +8,7 @@ import torch
 
 import diffstir.mpm.step as step_module
 from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.mpm.projection import PressureSolver, divergence, solve_pressure
+from diffstir.mpm.projection import PressureSolver, solve_pressure
 from diffstir.rheology import Newtonian
 from diffstir.rig import Rig
 from diffstir.trajectory import circle

@@ -63,7 +63,9 @@ def test_outside_the_swept_range_sigma_widens():
 
 @pytest.mark.parametrize("name", ["cup_radius", "fill_height", "rod_radius", "immersion_depth", "orbit_radius"])
 def test_a_negative_length_is_refused_naming_it_and_its_unit(name):
-    with pytest.raises(ValueError, match=f"{name} = -0.01 m; expected a positive length in m"):
+    expected = ("the rod's distance from the cup's axis, >= 0 m" if name == "orbit_radius"
+                else "a positive length in m")  # a rod on the axis has orbit_radius 0
+    with pytest.raises(ValueError, match=f"^{name} = -0.01 m; expected {expected}$"):
         slice_correction(**{**PAPER, name: -0.01})
 
 

@@ -39,7 +39,7 @@ import numpy as np
 from ..identify import FitModel, StirProblem, Windows, fit_model
 from ..identify.initial import LADDER_VISCOSITIES, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate
 from ..identify.progress import fit_simulations
-from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples
+from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples, force_error
 from ..mpm import SimConfig
 from ..recording import Recording
 from .windows import SpeedWindow
@@ -149,7 +149,8 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
     train = problem.train
     log_eta, log_std, model_log_std, baseline = with_baseline(
         fit.jacobian[train, 0], (problem.measured - fit.predicted)[train], fit.theta[0],
-        window.recording.sensor.resolution or 0.0, fit.simulated_readings[train], model_error)
+        window.recording.sensor.resolution or 0.0, fit.simulated_readings[train],
+        force_error(model_error, problem.slice_correction(fit.model.material)))
     eta = math.exp(log_eta)
     rate = effective_shear_rate(problem, eta, on_evaluation=count)
     return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,

@@ -154,6 +154,12 @@ class JointProblem:
         joint.config = joint.problems[0].config
         return joint
 
+    def slice_sigma(self, material: nn.Module) -> float:
+        """The largest relative 1-σ uncertainty [1] of the slice corrections (``StirProblem.slice_correction``)
+        of the recordings' problems for ``material``; 0 in 3-D."""
+        corrections = [p.slice_correction(material) for p in self.problems]
+        return max((c.sigma for c in corrections if c is not None), default=0.0)
+
     def simulate(self, material: nn.Module) -> Tensor:
         """Simulated readings [N] in every window, recording after recording."""
         return torch.cat([p.simulate(material)[torch.as_tensor(m)] for p, m in zip(self.problems, self.masks)])
@@ -276,7 +282,8 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     weights = problem.weights
     residuals = {n: weights * (f.predicted - problem.measured) for n, f in fits.items()}
     uncertainty = {n: laplace(f.model, f.theta, weights[:, None] * f.jacobian, residuals[n],
-                              readings=weights * f.predicted, model_error=model_error,
+                              readings=weights * f.predicted,
+                              model_error=math.hypot(model_error, problem.slice_sigma(f.model.material)),
                               windows=problem.window_labels) for n, f in fits.items()}
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples

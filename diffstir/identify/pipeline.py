@@ -30,6 +30,7 @@ from ..recording import Recording, RecordingError
 from ..recording.digest import recording_digest
 from ..report_files import finite_or_none, write_text_atomically
 from ..rheology import LAWS
+from ..slice_correction import flow_state, slice_correction_table
 from .family import law_family
 from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate,
                       mean_stirring_speed)
@@ -42,7 +43,8 @@ from .problem import StirProblem, Windows
 from .progress import Progress, fit_simulations
 from .selection import bic, select
 from .stages import SECANT_STEPS, Plan, Stage
-from .uncertainty import MODEL_FORCE_ERROR, Uncertainty, checked_model_error, laplace, log_viscosity_interval
+from .uncertainty import (MODEL_FORCE_ERROR, Uncertainty, checked_model_error, force_error, laplace,
+                          log_viscosity_interval)
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
@@ -93,6 +95,7 @@ class Identification:
                 "evaluations": fit.evaluations, "seconds": fit.seconds, "optimizer_message": fit.message,
                 "sensor": {**fit.sensor, "units": {k: UNITS[k] for k in fit.sensor}},
                 "family": self.family(name),
+                "slice_correction": slice_correction_summary(self.problem, fit.model.material),
             }
         laws_only = {k: v for k, v in laws.items() if k != "corotated"}
         return {
@@ -111,6 +114,7 @@ class Identification:
                         "end": self.problem.windows.end, "unit": "s"},
             "dead_start": self.problem.windows.dead_start.summary(),
             "shear_rate_range": list(self.probed_shear_rates()),
+            "slice_correction": laws[self.selection["selected"]]["slice_correction"],
             "simulation": {**self.problem.config.numerics(), "force_error": self.model_error},
             "seconds": self.seconds,
         }
@@ -184,6 +188,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     settings = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
                 "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
                 "max_iterations": max_iterations, **config.numerics(), "density": density_report["value"],
+                "slice_correction": slice_correction_table()["coefficients"] if config.dim == 2 else None,
                 "shear_rate_probes": PROBE_INDEX_STEP,
                 "coarse": None if coarse is None else {**coarse.numerics(), "fine_iterations": fine_iterations}}
     state = _load_checkpoint(checkpoint, settings, recording_label(recording), overwrite)
@@ -258,7 +263,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             newtonian = plan.fits[stages[-1].name].get("newtonian")
             if size_estimate and newtonian is not None and "magnitude" not in state and not magnitude_pending:
                 eta = newtonian.model.params_si()["eta"]
-                pool.submit(MagnitudeJob(stages[-1].name, "magnitude", problem, eta, model_error))
+                error = force_error(model_error, problem.slice_correction(newtonian.model.material))
+                pool.submit(MagnitudeJob(stages[-1].name, "magnitude", problem, eta, error))
                 magnitude_pending = True
 
         submit_ready()
@@ -277,7 +283,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     residuals = {name: (fit.predicted - problem.measured)[train] for name, fit in fits.items()}
     uncertainty = {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
                                                                         problem.times, fit.sensor, train),
-                                 residuals[name], fit.simulated_readings[train], model_error)
+                                 residuals[name], fit.simulated_readings[train],
+                                 force_error(model_error, problem.slice_correction(fit.model.material)))
                    for name, fit in fits.items()}
     # one sample count for every model, or BIC would compare likelihoods of different data: that of the
     # best-fitting model, whose residuals are the closest to the noise
@@ -294,6 +301,21 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
                           magnitude=state.get("magnitude"))
+
+
+def slice_correction_summary(problem: StirProblem, material) -> dict | None:
+    """The slice correction applied to ``material``'s simulated force on ``problem`` (None in 3-D): the factor C =
+    F_3D / (F'_2D h), its relative 1-σ uncertainty, whether the rig lies within the 3-D study's ranges, and the flow
+    index and Reynolds number it was evaluated at (``problem.flow_state``)."""
+    correction = problem.slice_correction(material)
+    if correction is None:
+        return None
+    rod = problem.rig.rod
+    index, reynolds = flow_state(material, problem.stir_speed / rod.radius, problem.density, problem.stir_speed,
+                                 2 * rod.radius)
+    return {"factor": correction.factor, "sigma": correction.sigma, "inside_study": correction.inside,
+            "flow_index": index, "reynolds": reynolds, "stir_speed": problem.stir_speed,
+            "orbit_radius": problem.orbit_radius, "units": {"stir_speed": "m/s", "orbit_radius": "m"}}
 
 
 def interval_summary(ci95: dict[str, tuple[float, float]], identifiable: dict[str, bool]) -> dict:
@@ -330,14 +352,25 @@ def _preliminary(ladder: dict, problem: StirProblem) -> dict:
                           "probes": ladder["viscosities"], "mean_abs": ladder["mean_abs"]}}
 
 
+#: The viscous share of the drag below which the stir is reported inertia-dominated [1]: the part of the force
+#: that scales with η is then smaller than the part that does not.
+VISCOUS_SHARE_FLOOR = 0.5
+
+
 def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
     """Whether the sensor resolves the viscosity: the rms change of the reading for a factor 2 in η, against the
-    reading's noise level (and the sensor's resolution)."""
-    change = float(np.sqrt(np.mean((newtonian.jacobian[problem.train, 0] * math.log(2.0)) ** 2)))
+    reading's noise level (and the sensor's resolution); and the drag's viscous share e = d ln F / d ln η [1], the
+    least-squares slope (J·p)/(p·p) of the Newtonian fit's Jacobian J = d p / d ln η on its readings p. A drag
+    F = F_v + F_i with F_v ∝ η has e = F_v / F; below ``VISCOUS_SHARE_FLOOR`` the stir is inertia-dominated, and
+    the simulator's relative force error σ_m moves ln η by about σ_m / e (``uncertainty.laplace`` holds it)."""
+    jacobian, readings = newtonian.jacobian[problem.train, 0], newtonian.simulated_readings[problem.train]
+    change = float(np.sqrt(np.mean((jacobian * math.log(2.0)) ** 2)))
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
     floor = max(noise, problem.recording.sensor.resolution or 0.0)
+    norm = float(readings @ readings)
+    share = float(jacobian @ readings) / norm if norm > 0 else 0.0
     return {"viscosity": bool(change > floor), "reading_change_per_doubling": change, "noise": float(noise),
-            "unit": "N"}
+            "unit": "N", "viscous_share": share, "inertia_dominated": bool(share < VISCOUS_SHARE_FLOOR)}
 
 
 def _expected_simulations(stages: tuple[Stage, ...], names: list[str], state: dict, size_estimate: bool

@@ -5,8 +5,10 @@ The simulation always starts from the settled fluid at the recording's first sam
 runs to the end of the held-out window; later samples are not simulated. The fitted window starts where the sensor
 wakes (``dead_start``), and the simulation still starts at the first sample: the flow the live readings see has
 developed over the dead stretch. A 2-D slice gives a force per unit length
-[N/m]; it stands for the rod's immersed length, F = F' · rod.immersion_depth [N] (end effects at the tip and the
-free surface are left out; they are part of the gap that the rectifier corrects).
+F' [N/m]; the rod in the recording's cup feels F = F' h C [N], h the rod's immersion and C = F_3D / (F'_2D h) the
+slice's correction for the recording's rig (``diffstir.slice_correction``, from the 3-D finite-element reference:
+the tip, the fluid below it and the free surface), at the flow index and Reynolds number the simulated fluid has at
+the stir's shear rate U/a. C's own relative uncertainty joins the simulator's force error in every interval.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from ..recording import Recording, RecordingError
 from ..recording.resample import resample_force
 from ..recording.sensor import sensor_history_at, sensor_reading
 from ..rig import Cup, Rig, Rod
+from ..slice_correction import MOVING_SHARE, SliceCorrection, stir_correction, stir_scales
 from ..trajectory import Trajectory, through_samples
 
 #: Headroom above the fluid for the simulated cup [m]: the paper's cup is 16.5 cm tall and filled to 13 cm.
@@ -33,10 +36,6 @@ CUP_HEADROOM = 0.035
 #: noise σ stays within the resolution's half-step of a value with a chance erf(q / (2 sqrt(2) σ)) per sample, and
 #: a stretch of readings that would do so by this chance or less, while the rod moves, is a sensor not yet awake.
 DEAD_START_CHANCE = 1e-3
-
-#: A sample counts as stirring where the rod moves faster than this share of its top speed [1] (as the probed
-#: shear rates count it, ``Identification.probed_shear_rates``).
-MOVING_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -226,6 +225,22 @@ class StirProblem:
         if self.train.sum() < 8:
             raise RecordingError(f"{recording.source('csv')}: only {int(self.train.sum())} samples before the "
                                  f"held-out split at {self.windows.split:g} s; shorten fit.holdout_fraction")
+        self.stir_speed, self.orbit_radius = stir_scales(  # m/s, m
+            np.stack([recording.x[self.index], recording.y[self.index]], axis=1)[self.train],
+            self.velocity[self.train])
+        try:  # a rig outside the correction's domain is refused here, before any simulation
+            self.slice_correction()
+        except ValueError as err:
+            raise RecordingError(f"{recording.source('yaml')}: {err}") from None
+
+    def slice_correction(self, material: nn.Module | None = None) -> SliceCorrection | None:
+        """C = F_3D / (F'_2D h) of this recording's rig (``diffstir.slice_correction``) for the flow ``material``
+        makes at the stir's shear rate U/a: its local flow index n = 1 + d ln η / d ln γ̇ and Reynolds number
+        ρ U 2a / η there (``flow_state``); n = 1, Re = 0 without a material or for one that is not a rheology law.
+        None in 3-D, where nothing is sliced."""
+        if self.config.dim != 2:
+            return None
+        return stir_correction(self.rig, material, self.density, self.stir_speed, self.orbit_radius)
 
     def loss(self, predicted: np.ndarray, train: bool = True) -> float | None:
         """The paper's loss, mean |measured - predicted| [N], over the fitted (or the held-out) samples; None when
@@ -270,7 +285,8 @@ class StirProblem:
         result = self.simulator(material)(self.trajectory)
         sim_times = result.times.detach().cpu().numpy()
         at = np.clip(self.times, sim_times[0], sim_times[-1])
-        force, spec = result.force[:, :2] * self.slice_length, self.recording.sensor
+        scale = self.slice_length * (self.slice_correction(material).factor if self.config.dim == 2 else 1.0)
+        force, spec = result.force[:, :2] * scale, self.recording.sensor
         if spec.time_constant:  # the sensor responds to the force at every step, not only at its samples
             return sensor_history_at(self.recording, sim_times, force, at)
         force = resample_force(sim_times, force, at)

@@ -51,6 +51,12 @@ def markdown(summary: dict) -> str:
     if refined is not None:
         value = "-" if refined["value"] is None else f"{refined['value']:.4g} Pa·s"
         lines.append(f"- learned sim-to-real rectifier: {value} ({refined['note']})")
+    correction = summary.get("slice_correction")
+    if correction is not None:
+        where = "inside" if correction["inside_study"] else "**outside** (clamped, σ widened)"
+        lines.append(f"- 2-D slice read as the cup's rod: F = F' h C, C = {correction['factor']:.4g} "
+                     f"± {100 * correction['sigma']:.2g} % (1σ) at flow index {correction['flow_index']:.3g}, "
+                     f"Re {correction['reynolds']:.3g}; the rig lies {where} the 3-D study's ranges")
     dead = summary["dead_start"]
     if dead["detected"]:
         lines.append(f"- the sensor reads one value until {dead['until_s']:.3g} s while the rod moves (a dead start): "
@@ -59,6 +65,11 @@ def markdown(summary: dict) -> str:
         lines.append("- **not identifiable** from the waveform: doubling the viscosity changes the reading by "
                      f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "
                      f"({summary['resolvable']['noise']:.3g} N); the fitted numbers are not measurements")
+    if summary["resolvable"].get("inertia_dominated"):
+        lines.append(f"- **inertia-dominated** stir: the part of the drag that scales with the viscosity is "
+                     f"{100 * summary['resolvable']['viscous_share']:.0f} % of it, so the simulator's force error "
+                     "moves the viscosity by about that error over this share (in every interval); stir slower "
+                     "(a lower Reynolds number) to measure a thin fluid")
     magnitude = summary.get("magnitude")
     if magnitude is not None:
         lo, hi = magnitude["ci95"]

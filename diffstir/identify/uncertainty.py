@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from ..slice_correction import SliceCorrection
 from .models import FitModel
 
 Z95 = 1.959963984540054
@@ -43,6 +44,12 @@ MODEL_FORCE_ERROR = 0.03
 #: σ_m of the coarse grid (``conf/sim/coarse2d.yaml``, dx = 5 mm): its Newtonian Couette torque was 6.3 % low
 #: when this was set (7.9 % since the wall-node fix, docs/validation.md).
 COARSE_FORCE_ERROR = 0.063
+
+
+def force_error(model_error: float, correction: SliceCorrection | None) -> float:
+    """The simulated force's relative 1-σ error [1]: the simulator's ``model_error`` and the slice correction's
+    own uncertainty (``StirProblem.slice_correction``; none in 3-D), independent, in quadrature."""
+    return model_error if correction is None else math.hypot(model_error, correction.sigma)
 
 
 def checked_model_error(value: float, field: str) -> float:

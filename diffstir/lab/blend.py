@@ -47,6 +47,7 @@ from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.mpm.grid import quadratic_stencil
 from diffstir.mpm.materials import deviatoric_rate_of_strain, shear_rate
 from diffstir.rig import Rig
+from diffstir.slice_correction import trajectory_correction
 from diffstir.trajectory import Trajectory
 
 LAYOUTS = ("core", "annulus", "half")
@@ -218,7 +219,9 @@ def simulate_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = No
             rate = shear_rate(deviatoric_rate_of_strain(state.C))
             c = mix(scene, state.x, rate, c, t1 - t0, blend.diffusivity, blend.strain_mixing)
         history.append(_snapshot(material, state, c, float(edges[-1])))
-    length = rig.rod.immersion_depth if sim_config.dim == 2 else 1.0
+    factor = trajectory_correction(rig, material, blend.density, trajectory, np.concatenate(times)).factor if (
+        sim_config.dim == 2) else 1.0
+    length = rig.rod.immersion_depth * factor if sim_config.dim == 2 else 1.0  # 2-D: F = F' h C
     stats = np.array(history)
     cov = stats[:, 2]
     settled = np.flatnonzero(cov > HOMOGENEITY_COV)
@@ -228,7 +231,7 @@ def simulate_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = No
                   law=blend.first.law)
     truth = TruthSimulation(fluid, trajectory, rig, sim_config, HiddenPhysicsSpec(), np.concatenate(times),
                             np.concatenate(forces) * length, dt, int(state.num_particles),
-                            list(scene.grid.shape), sim_config.dim == 2)
+                            list(scene.grid.shape), sim_config.dim == 2, factor)
     return truth, BlendHistory(stats[:, 0], stats[:, 1], cov, stats[:, 3], mixing_time)
 
 

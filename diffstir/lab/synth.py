@@ -27,6 +27,7 @@ from diffstir.recording import (
 )
 from diffstir.report_files import to_json, write_text_atomically
 from diffstir.rig import Rig
+from diffstir.slice_correction import trajectory_correction
 from diffstir.trajectory import Trajectory
 
 TRUTH_FORMAT = "diffstir-lab-truth/1"
@@ -129,6 +130,7 @@ class TruthSimulation:
     particles: int
     grid: list[int]
     per_unit_length: bool
+    slice_factor: float = 1.0  # C applied to a 2-D truth's force (``diffstir.slice_correction``) [1]
 
 
 def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None,
@@ -151,11 +153,13 @@ def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = No
     with torch.no_grad():
         result = simulator(trajectory)
     times = trajectory.t[0] + result.dt * (np.arange(result.times.numel()) + 0.5)  # mid-step, float64
-    length = rig.rod.immersion_depth if result.per_unit_length else 1.0
+    factor = trajectory_correction(rig, material, fluid.density, trajectory, times).factor if (
+        result.per_unit_length) else 1.0
+    length = rig.rod.immersion_depth * factor if result.per_unit_length else 1.0  # 2-D: F = F' h C
     force = result.force.double().cpu().numpy()[:, :2] * length
     return TruthSimulation(fluid, trajectory, rig, sim_config, physics, times, force, result.dt,
                            int(result.state.num_particles), list(simulator.scene.grid.shape),
-                           bool(result.per_unit_length))
+                           bool(result.per_unit_length), factor)
 
 
 def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *, seed: int = 0,
@@ -191,8 +195,10 @@ def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *,
         "rig": asdict(rig),
         "simulator": {"config": asdict(sim_config), "dt": truth_sim.dt, "steps": int(times.size),
                       "particles": truth_sim.particles, "grid": truth_sim.grid,
-                      "force_scale": ("2-D force per unit length times the rod's immersion depth [m]"
-                                      if truth_sim.per_unit_length else "3-D force")},
+                      "force_scale": ("2-D force per unit length times the rod's immersion depth [m] and the "
+                                      "slice correction C (diffstir.slice_correction)"
+                                      if truth_sim.per_unit_length else "3-D force"),
+                      "slice_factor": truth_sim.slice_factor},
         "seed": seed,
         "units": "SI: m, s, N, kg/m^3, Pa, Pa s, K/s, 1/K; temperature in degC",
     }
