@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +27,30 @@ full_only = pytest.mark.skipif(not FULL, reason="a default run longer than CI's 
                                                 "runs it (docs/acceptance.md)")
 
 
+#: where ``run`` appends one line per command (scripts/acceptance.sh sets it; unset: no log)
+TIMING_LOG = os.environ.get("DIFFSTIR_ACCEPTANCE_LOG")
+
+
 def run(*command: str, cwd: Path, timeout: float) -> subprocess.CompletedProcess:
-    """``command`` (a console script and its arguments) in ``cwd``, its output captured, within ``timeout`` [s]."""
+    """``command`` (a console script and its arguments) in ``cwd``, its output captured, within ``timeout`` [s].
+    With ``TIMING_LOG`` set, one tab-separated line is appended there: the UTC start, the wall time [s], the exit
+    status, the command and its output's last line (a fit's or an experiment's summary)."""
     env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
-    return subprocess.run(list(command), cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
+    started, clock = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), time.perf_counter()
+    try:
+        result = subprocess.run(list(command), cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        _log(started, clock, "timeout", command, f"past the test's {timeout:g} s")
+        raise
+    last = (result.stdout.strip().splitlines() or result.stderr.strip().splitlines() or [""])[-1]
+    _log(started, clock, str(result.returncode), command, last)
+    return result
+
+
+def _log(started: str, clock: float, status: str, command: tuple[str, ...], last: str) -> None:
+    if TIMING_LOG:
+        with open(TIMING_LOG, "a", encoding="utf-8") as log:
+            log.write(f"{started}\t{time.perf_counter() - clock:.1f}\t{status}\t{' '.join(command)}\t{last}\n")
 
 
 def ok(result: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
