@@ -16,11 +16,13 @@ from diffstir.behaviour.apparent import with_baseline
 from diffstir.behaviour.classify import YIELD_CRITICAL, SlopeEstimate, combined_slope, slope_agreement
 from diffstir.behaviour.joint import paste_start
 from diffstir.behaviour.pipeline import reclassify
+from diffstir.identify.problem import rig_from_recording
 from diffstir.identify.uncertainty import Z95, effective_samples
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
 from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, save_recording
-from diffstir.rheology import FlowCurve
+from diffstir.slice_correction import stir_correction
+from diffstir.rheology import FlowCurve, Newtonian
 
 # 1 cm cells, the rod 2.5 across, the sound speed 6 times the fastest stir, the viscosity capped at 5 Pa s, steps of
 # 3.6 ms: a fast stand-in for the pipeline's statistics, the same model for the truth and the fit, with APIC
@@ -328,6 +330,14 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
         lo, hi = p.ci95
         assert lo <= 0.5 <= hi
     assert result.density["source"].startswith("archimedes")
+    # each window reads the slice as the cup's rod with the correction of a Newtonian fluid at its speed: C moves
+    # with Re by c₅ ≈ 0.004 per unit, so the windows' small differences of η and speed change it by well under 1e-3
+    recording = lab_recordings["newtonian"]
+    rig = rig_from_recording(recording)
+    for p in result.points:
+        expected = stir_correction(rig, Newtonian(eta=p.viscosity), 1000.0, p.speed, 0.015).factor
+        assert p.slice_factor == pytest.approx(expected, abs=1e-3)
+        assert p.summary()["slice_factor"] == p.slice_factor
 
 
 def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings, capsys):

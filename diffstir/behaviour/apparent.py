@@ -66,6 +66,7 @@ class ViscosityPoint:
             fluid's drag is set by inertia, not viscosity).
         loss: the paper's loss of the Newtonian fit, mean |ΔF| [N].
         evaluations: forward simulations spent.
+        slice_factor: the slice's correction C of the fitted fluid (``identify.problem``: F = F' h C; None in 3-D).
     """
 
     window: SpeedWindow
@@ -78,6 +79,7 @@ class ViscosityPoint:
     resolvable: bool
     loss: float
     evaluations: int
+    slice_factor: float | None = None
 
     @property
     def metzner_otto(self) -> float:
@@ -102,7 +104,7 @@ class ViscosityPoint:
                 "viscosity_ci95": list(self.ci95), "log_std": self.log_std,
                 "model_log_std": self.model_log_std, "baseline": self.baseline,
                 "resolvable": self.resolvable,
-                "loss": self.loss, "evaluations": self.evaluations,
+                "loss": self.loss, "evaluations": self.evaluations, "slice_factor": self.slice_factor,
                 "units": {"speed": "m/s", "measured_shear_rate": "1/s", "metzner_otto": "1", "viscosity": "Pa s",
                           "baseline": "N", "loss": "N"}}
 
@@ -147,16 +149,18 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
                     on_evaluation=fit_evaluation)
     evaluations += fit.evaluations
     train = problem.train
+    correction = problem.slice_correction(fit.model.material)
     log_eta, log_std, model_log_std, baseline = with_baseline(
         fit.jacobian[train, 0], (problem.measured - fit.predicted)[train], fit.theta[0],
         window.recording.sensor.resolution or 0.0, fit.simulated_readings[train],
-        force_error(model_error, problem.slice_correction(fit.model.material)))
+        force_error(model_error, correction))
     eta = math.exp(log_eta)
     rate = effective_shear_rate(problem, eta, on_evaluation=count)
     return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,
                           log_std=log_std, model_log_std=model_log_std, baseline=baseline,
                           resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))),
-                          loss=fit.loss, evaluations=evaluations)
+                          loss=fit.loss, evaluations=evaluations,
+                          slice_factor=None if correction is None else correction.factor)
 
 
 def recording_config(config: SimConfig, recording: Recording) -> SimConfig:
