@@ -47,6 +47,8 @@ class SliceCorrection:
     factor: float  # F_3D / (F'_2D h) [1]
     sigma: float  # its relative 1-sigma uncertainty [1]
     inside: bool  # the rig, flow index and Reynolds number within the swept ranges
+    flow_index: float = 1.0  # n [1] it was evaluated at
+    reynolds: float = 0.0  # rho U 2a / eta [1] it was evaluated at
 
 
 def groups(cup_radius: float, fill_height: float, rod_radius: float, immersion_depth: float, orbit_radius: float,
@@ -116,7 +118,7 @@ def slice_correction(cup_radius: float, fill_height: float, rod_radius: float, i
     inside = distance < 1e-9  # round-off of the table's lengths
     if not inside:
         sigma = math.hypot(sigma, factor - 1.0) * (1.0 + distance)
-    return SliceCorrection(factor, sigma, inside)
+    return SliceCorrection(factor, sigma, inside, g["n"], g["reynolds"])
 
 
 def flow_state(material: nn.Module | None, shear_rate: float, density: float, speed: float,

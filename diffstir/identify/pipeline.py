@@ -30,7 +30,7 @@ from ..recording import Recording, RecordingError
 from ..recording.digest import recording_digest
 from ..report_files import finite_or_none, write_text_atomically
 from ..rheology import LAWS
-from ..slice_correction import flow_state, slice_correction_table
+from ..slice_correction import MOVING_SHARE, slice_correction_table
 from .family import law_family
 from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate,
                       mean_stirring_speed)
@@ -130,9 +130,10 @@ class Identification:
 
     def probed_shear_rates(self) -> tuple[float, float]:
         """The band of effective shear rates the stir covered [1/s]: γ̇_eff scaled by the rod's slowest and fastest
-        speeds in the fitted window relative to its mean (speeds below 5 % of the top speed are left out)."""
+        speeds in the fitted window relative to its mean (speeds below ``MOVING_SHARE`` of the top speed are left
+        out)."""
         speed = np.linalg.norm(self.problem.velocity[self.problem.train], axis=1)
-        moving = speed[speed > 0.05 * speed.max()] if speed.max() > 0 else np.ones(1)
+        moving = speed[speed > MOVING_SHARE * speed.max()] if speed.max() > 0 else np.ones(1)
         ratio = self.effective_shear_rate / max(float(np.mean(speed)), 1e-12)
         return float(moving.min() * ratio), float(moving.max() * ratio)
 
@@ -306,15 +307,12 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
 def slice_correction_summary(problem: StirProblem, material) -> dict | None:
     """The slice correction applied to ``material``'s simulated force on ``problem`` (None in 3-D): the factor C =
     F_3D / (F'_2D h), its relative 1-σ uncertainty, whether the rig lies within the 3-D study's ranges, and the flow
-    index and Reynolds number it was evaluated at (``problem.flow_state``)."""
+    index and Reynolds number it was evaluated at (``StirProblem.slice_correction``)."""
     correction = problem.slice_correction(material)
     if correction is None:
         return None
-    rod = problem.rig.rod
-    index, reynolds = flow_state(material, problem.stir_speed / rod.radius, problem.density, problem.stir_speed,
-                                 2 * rod.radius)
     return {"factor": correction.factor, "sigma": correction.sigma, "inside_study": correction.inside,
-            "flow_index": index, "reynolds": reynolds, "stir_speed": problem.stir_speed,
+            "flow_index": correction.flow_index, "reynolds": correction.reynolds, "stir_speed": problem.stir_speed,
             "orbit_radius": problem.orbit_radius, "units": {"stir_speed": "m/s", "orbit_radius": "m"}}
 
 

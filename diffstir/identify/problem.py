@@ -285,7 +285,8 @@ class StirProblem:
         result = self.simulator(material)(self.trajectory)
         sim_times = result.times.detach().cpu().numpy()
         at = np.clip(self.times, sim_times[0], sim_times[-1])
-        scale = self.slice_length * (self.slice_correction(material).factor if self.config.dim == 2 else 1.0)
+        correction = self.slice_correction(material)
+        scale = self.slice_length * (1.0 if correction is None else correction.factor)
         force, spec = result.force[:, :2] * scale, self.recording.sensor
         if spec.time_constant:  # the sensor responds to the force at every step, not only at its samples
             return sensor_history_at(self.recording, sim_times, force, at)
