@@ -257,7 +257,7 @@ def test_a_recording_without_a_steady_speed_is_refused_before_any_simulation(mon
     def simulated(*args, **kwargs):
         raise AssertionError("simulated before every recording's windows were found")
 
-    monkeypatch.setattr("diffstir.behaviour.pipeline.window_viscosity", simulated)
+    monkeypatch.setattr("diffstir.behaviour.apparent.window_viscosity", simulated)
     t = np.linspace(0.0, 3.0, 601)
     phase = 2.0 * t**2  # rad: no 0.3 s at one speed (as above)
     unsteady = path_recording(t, 0.015 * np.cos(phase), 0.015 * np.sin(phase))

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..identify import FitModel, StirProblem, Windows, fit_model
 from ..identify.initial import LADDER_VISCOSITIES, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate
-from ..identify.progress import fit_simulations
+from ..identify.progress import Progress, fit_simulations
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples, force_error
 from ..mpm import SimConfig
 from ..recording import Recording
@@ -161,6 +161,49 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
                           resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))),
                           loss=fit.loss, evaluations=evaluations,
                           slice_factor=None if correction is None else correction.factor)
+
+
+@dataclass
+class WindowsJob:
+    """The apparent viscosities of one recording's ``windows`` in order, each window's ladder started from the
+    viscosity before it (``window_viscosity``); a job for ``parallel.Workers`` whose events are each
+    simulation, ``("evaluation", stage, window label, 0, loss or None)``, and each window's end,
+    ``("window", stage, window label)``."""
+
+    stage: str
+    key: str
+    windows: list[SpeedWindow]
+    config: SimConfig
+    density: float  # kg/m³
+    iterations: int
+    model_error: float
+
+    @property
+    def priority(self) -> tuple[bool, float]:
+        """The recording simulated longest first."""
+        return True, sum(w.end for w in self.windows)
+
+    def run(self, report) -> list[ViscosityPoint]:
+        points: list[ViscosityPoint] = []
+        for window in self.windows:
+            def evaluation(loss, label=window.label):
+                report(("evaluation", self.stage, label, 0, loss))
+
+            points.append(window_viscosity(window, self.config, self.density,
+                                           guess=points[-1].viscosity if points else None,
+                                           iterations=self.iterations, model_error=self.model_error,
+                                           on_evaluation=evaluation))
+            report(("window", self.stage, window.label))
+        return points
+
+
+def window_event(tracker: Progress, event: tuple) -> None:
+    """A ``WindowsJob``'s event counted against its window's task."""
+    kind, _stage, label, *data = event
+    if kind == "evaluation":
+        tracker.evaluation(label, label, data[1])
+    elif kind == "window":
+        tracker.finished(label)
 
 
 def recording_config(config: SimConfig, recording: Recording) -> SimConfig:

@@ -29,11 +29,11 @@ from ..mpm import SimConfig
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
 from ..rheology import has_yield_stress
-from .apparent import ViscosityPoint, window_simulations, window_viscosity
+from .apparent import ViscosityPoint, WindowsJob, window_event, window_simulations
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
 from .joint import JointFit, joint_fit, joint_simulations, yield_share
-from .windows import PAUSE_SPEED, SpeedWindow, speed_windows
+from .windows import PAUSE_SPEED, speed_windows
 
 #: Laws fitted to all speeds at once by default.
 JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
@@ -121,7 +121,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     with Progress(expected, bar=progress, label="behaviour") as tracker:
         jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], iterations, model_error)
                 for k, recording_windows in enumerate(windows) if recording_windows]
-        with Workers(min(workers, len(jobs)), partial(_window_event, tracker)) as pool:
+        with Workers(min(workers, len(jobs)), partial(window_event, tracker)) as pool:
             points = [p for recording_points in pool.map(jobs) for p in recording_points]
         used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
         if len({round(p.speed, 6) for p in used}) < 2:
@@ -145,49 +145,6 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         result = decide(result, index, test, slope_test)
         tracker.close(f"{result.label} (confidence {result.confidence:.2f})")
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
-
-
-@dataclass
-class WindowsJob:
-    """The apparent viscosities of one recording's ``windows`` in order, each window's ladder started from the
-    viscosity before it (``apparent.window_viscosity``); a job for ``parallel.Workers`` whose events are each
-    simulation, ``("evaluation", stage, window label, 0, loss or None)``, and each window's end,
-    ``("window", stage, window label)``."""
-
-    stage: str
-    key: str
-    windows: list[SpeedWindow]
-    config: SimConfig
-    density: float  # kg/m³
-    iterations: int
-    model_error: float
-
-    @property
-    def priority(self) -> tuple[bool, float]:
-        """The recording simulated longest first."""
-        return True, sum(w.end for w in self.windows)
-
-    def run(self, report) -> list[ViscosityPoint]:
-        points: list[ViscosityPoint] = []
-        for window in self.windows:
-            def evaluation(loss, label=window.label):
-                report(("evaluation", self.stage, label, 0, loss))
-
-            points.append(window_viscosity(window, self.config, self.density,
-                                           guess=points[-1].viscosity if points else None,
-                                           iterations=self.iterations, model_error=self.model_error,
-                                           on_evaluation=evaluation))
-            report(("window", self.stage, window.label))
-        return points
-
-
-def _window_event(tracker: Progress, event: tuple) -> None:
-    """A ``WindowsJob``'s event counted against its window's task."""
-    kind, _stage, label, *data = event
-    if kind == "evaluation":
-        tracker.evaluation(label, label, data[1])
-    elif kind == "window":
-        tracker.finished(label)
 
 
 def _joint_evaluation(tracker: Progress, event: tuple) -> None:

@@ -32,8 +32,8 @@ from functools import partial
 import numpy as np
 from scipy import optimize
 
-from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows, window_viscosity
-from ..behaviour.apparent import window_simulations
+from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows
+from ..behaviour.apparent import WindowsJob, window_event, window_simulations
 from ..errors import ConfigError
 from ..identify.progress import Progress
 from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
@@ -180,12 +180,8 @@ def track_viscosity(windows: list[SpeedWindow], config: SimConfig, density: floa
     ``model_error`` the relative force error of ``config`` (``behaviour.window_viscosity``); ``progress`` shows a
     progress bar of the simulations, one task per window (``identify.progress``)."""
     expected = {w.label: window_simulations(k > 0, iterations) for k, w in enumerate(windows)}
-    points: list[ViscosityPoint] = []
     with Progress(expected, bar=progress, label="mixing") as tracker:
-        for w in windows:
-            points.append(window_viscosity(w, config, density, guess=points[-1].viscosity if points else None,
-                                           iterations=iterations, model_error=model_error,
-                                           on_evaluation=partial(tracker.evaluation, w.label, w.label)))
-            tracker.finished(w.label)
+        job = WindowsJob("windows", "mixing", windows, config, density, iterations, model_error)
+        points = job.run(partial(window_event, tracker))
         tracker.close(f"{len(points)} windows")
     return points
