@@ -219,9 +219,10 @@ def simulate_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = No
             rate = shear_rate(deviatoric_rate_of_strain(state.C))
             c = mix(scene, state.x, rate, c, t1 - t0, blend.diffusivity, blend.strain_mixing)
         history.append(_snapshot(material, state, c, float(edges[-1])))
-    factor = trajectory_correction(rig, material, blend.density, trajectory, np.concatenate(times)).factor if (
-        sim_config.dim == 2) else 1.0
-    length = rig.rod.immersion_depth * factor if sim_config.dim == 2 else 1.0  # 2-D: F = F' h C
+    factor, length = 1.0, 1.0  # 3-D: newtons
+    if sim_config.dim == 2:  # F = F' h C
+        factor = trajectory_correction(rig, material, blend.density, trajectory, np.concatenate(times)).factor
+        length = rig.rod.immersion_depth * factor
     stats = np.array(history)
     cov = stats[:, 2]
     settled = np.flatnonzero(cov > HOMOGENEITY_COV)

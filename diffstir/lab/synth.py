@@ -153,9 +153,10 @@ def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = No
     with torch.no_grad():
         result = simulator(trajectory)
     times = trajectory.t[0] + result.dt * (np.arange(result.times.numel()) + 0.5)  # mid-step, float64
-    factor = trajectory_correction(rig, material, fluid.density, trajectory, times).factor if (
-        result.per_unit_length) else 1.0
-    length = rig.rod.immersion_depth * factor if result.per_unit_length else 1.0  # 2-D: F = F' h C
+    factor, length = 1.0, 1.0  # 3-D: newtons
+    if result.per_unit_length:  # 2-D: F = F' h C
+        factor = trajectory_correction(rig, material, fluid.density, trajectory, times).factor
+        length = rig.rod.immersion_depth * factor
     force = result.force.double().cpu().numpy()[:, :2] * length
     return TruthSimulation(fluid, trajectory, rig, sim_config, physics, times, force, result.dt,
                            int(result.state.num_particles), list(simulator.scene.grid.shape),
