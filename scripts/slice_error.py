@@ -32,9 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import stir_reference_3d as ref  # noqa: E402
+from diffstir.lab import stokes3d
 
 FINE_CELL = 0.003  # m, the cup's cell for the Stokes rows
 SLAB_CELL = 0.0015  # m, the slab's cell for the Stokes rows
@@ -42,15 +40,15 @@ COARSE_CELL = 0.0045  # m, both meshes for the power-law and inertial rows and t
 DENSITY = 1000.0  # kg/m³
 
 RIGS = {  # cup radius R, fill H, rod radius a, gap g (tip above the bottom), circle radius e [m]
-    "paper": ref.Rig(cup_radius=0.0475, fill=0.125, rod_radius=0.0125, gap=0.020, orbit=0.030),
-    "shallow": ref.Rig(cup_radius=0.0475, fill=0.090, rod_radius=0.0125, gap=0.050, orbit=0.020),
-    "deep_centred": ref.Rig(cup_radius=0.0475, fill=0.120, rod_radius=0.0125, gap=0.010, orbit=0.010),
-    "thin_rod": ref.Rig(cup_radius=0.050, fill=0.100, rod_radius=0.010, gap=0.030, orbit=0.025),
-    "mid": ref.Rig(cup_radius=0.0475, fill=0.080, rod_radius=0.0125, gap=0.020, orbit=0.015),
-    "small_cup": ref.Rig(cup_radius=0.040, fill=0.050, rod_radius=0.010, gap=0.010, orbit=0.020),
-    "paper_e25": ref.Rig(cup_radius=0.0475, fill=0.125, rod_radius=0.0125, gap=0.020, orbit=0.025),
+    "paper": stokes3d.CupRig(cup_radius=0.0475, fill=0.125, rod_radius=0.0125, gap=0.020, orbit=0.030),
+    "shallow": stokes3d.CupRig(cup_radius=0.0475, fill=0.090, rod_radius=0.0125, gap=0.050, orbit=0.020),
+    "deep_centred": stokes3d.CupRig(cup_radius=0.0475, fill=0.120, rod_radius=0.0125, gap=0.010, orbit=0.010),
+    "thin_rod": stokes3d.CupRig(cup_radius=0.050, fill=0.100, rod_radius=0.010, gap=0.030, orbit=0.025),
+    "mid": stokes3d.CupRig(cup_radius=0.0475, fill=0.080, rod_radius=0.0125, gap=0.020, orbit=0.015),
+    "small_cup": stokes3d.CupRig(cup_radius=0.040, fill=0.050, rod_radius=0.010, gap=0.010, orbit=0.020),
+    "paper_e25": stokes3d.CupRig(cup_radius=0.0475, fill=0.125, rod_radius=0.0125, gap=0.020, orbit=0.025),
     # the project's default rig (conf/rig/paper.yaml) on a 15 mm circle
-    "project": ref.Rig(cup_radius=0.0425, fill=0.13005, rod_radius=0.0125, gap=0.05005, orbit=0.015),
+    "project": stokes3d.CupRig(cup_radius=0.0425, fill=0.13005, rod_radius=0.0125, gap=0.05005, orbit=0.015),
 }
 
 POWER_LAW_RIGS = ("paper", "shallow", "project")
@@ -62,7 +60,7 @@ INERTIA = {  # rig: [(η [Pa s], U [m/s])], Re = ρ U 2a / η from 0.1 to 30
 }
 
 
-def geometry(rig: ref.Rig) -> dict:
+def geometry(rig: stokes3d.CupRig) -> dict:
     """The rig's lengths [m] and dimensionless groups."""
     a = rig.rod_radius
     return {"cup_radius_m": rig.cup_radius, "fill_m": rig.fill, "rod_radius_m": a, "gap_m": rig.gap,
@@ -71,19 +69,19 @@ def geometry(rig: ref.Rig) -> dict:
             "wall_gap_over_a": (rig.cup_radius - rig.orbit - a) / a}
 
 
-def forces(rig: ref.Rig, law, speed: float, cell: float, slab_cell: float, inertia: bool) -> dict:
+def forces(rig: stokes3d.CupRig, law, speed: float, cell: float, slab_cell: float, inertia: bool) -> dict:
     """F_3D [N], F'_2D [N/m], their ratio over h, and the solves' costs."""
     start = time.time()
     options = {"inertia": inertia, "density": DENSITY}
-    cup = ref.solve(ref.build_mesh(rig, cell), law, speed, **options)
-    slab = ref.slab_force(rig, slab_cell, law, speed, **options)
+    cup = stokes3d.solve(stokes3d.build_mesh(rig, cell), law, speed, **options)
+    slab = stokes3d.slab_force(rig, slab_cell, law, speed, **options)
     return {"F_3D_N": cup.drag, "F_2D_N_per_m": slab.drag, "ratio": cup.drag / (slab.drag * rig.immersion),
             "cells_m": {"cup": cell, "slab": slab_cell}, "iterations": {"cup": cup.iterations, "slab": slab.iterations},
             "unknowns": cup.n_velocity + cup.n_pressure, "solver": cup.solver, "seconds": time.time() - start,
             "peak_memory_gib": cup.memory_gib}
 
 
-def row(name: str, rig: ref.Rig, law: dict, speed: float, reynolds: float, result: dict, factor: float | None) -> dict:
+def row(name: str, rig: stokes3d.CupRig, law: dict, speed: float, reynolds: float, result: dict, factor: float | None) -> dict:
     """One table row; ``factor`` the rig's mesh factor κ for a coarse row (None for a Stokes row)."""
     out = {"rig": name, **geometry(rig), "law": law, "speed_m_per_s": speed, "reynolds": reynolds,
            "h_m": rig.immersion, **result}

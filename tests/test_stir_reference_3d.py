@@ -24,7 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
 import stir_reference_3d as ref  # noqa: E402
 
-PAPER = ref.Rig()
+from diffstir.lab import stokes3d  # noqa: E402
+
+PAPER = stokes3d.CupRig()
 A, B = PAPER.rod_radius, PAPER.cup_radius
 
 
@@ -33,9 +35,9 @@ def polygon_error(sensitivity: float, cell: float) -> float:
     return sensitivity * cell**2 / (12 * A**2)
 
 
-def centred(cell: float) -> tuple[ref.Rig, ref.RigMesh]:
+def centred(cell: float) -> tuple[stokes3d.CupRig, stokes3d.RigMesh]:
     rig = ref.long_rod(dataclasses.replace(PAPER, orbit=0.0), cell)
-    return rig, ref.build_mesh(rig, cell)
+    return rig, stokes3d.build_mesh(rig, cell)
 
 
 def test_margules_torque_converges_to_the_closed_form():
@@ -46,7 +48,7 @@ def test_margules_torque_converges_to_the_closed_form():
     errors = {}
     for cell in (0.006, 0.004):
         rig, mesh = centred(cell)
-        result = ref.solve(mesh, 1.0, 0.01, motion="spin")
+        result = stokes3d.solve(mesh, 1.0, 0.01, motion="spin")
         errors[cell] = abs(-result.torque / rig.fill / exact - 1)
     sensitivity = 2 * B**2 / (B**2 - A**2)
     assert errors[0.004] < min(0.02, polygon_error(sensitivity, 0.004))
@@ -57,7 +59,7 @@ def test_translating_rod_drag_matches_the_exact_2d_drag():
     """A centred rod translating through the whole depth, slip ends: 4π η U / [ln(b/a) − (b² − a²)/(b² + a²)] per
     length; S = (1 − 4a²b²/(a² + b²)²) / [ln(b/a) − (b² − a²)/(b² + a²)]."""
     rig, mesh = centred(0.004)
-    result = ref.solve(mesh, 2.0, 0.01, motion="translate")
+    result = stokes3d.solve(mesh, 2.0, 0.01, motion="translate")
     denominator = math.log(B / A) - (B**2 - A**2) / (B**2 + A**2)
     sensitivity = (1 - 4 * A**2 * B**2 / (A**2 + B**2) ** 2) / denominator
     ratio = result.drag / rig.fill / ref.translating_rod_drag(2.0, 0.01, A, B)
@@ -72,8 +74,8 @@ def test_eccentric_rod_matches_the_2d_reference_and_the_slab():
     measured with."""
     cell = 0.004
     rig = ref.long_rod(PAPER, cell)
-    long = ref.solve(ref.build_mesh(rig, cell), 1.0, 0.01)
-    slab = ref.slab_force(PAPER, cell, 1.0, 0.01)
+    long = stokes3d.solve(stokes3d.build_mesh(rig, cell), 1.0, 0.01)
+    slab = stokes3d.slab_force(PAPER, cell, 1.0, 0.01)
     reference = ref.stokes_2d(PAPER, 1.0, 0.01, mesh=(160, 32))
     assert long.drag / rig.fill == pytest.approx(reference, rel=0.02)
     assert slab.drag == pytest.approx(reference, rel=0.02)
@@ -86,7 +88,7 @@ def test_power_law_couette_torque():
 
     rig, mesh = centred(0.006)
     law = PowerLaw(k=1.0, n=0.6, shear_rate_reg=1e-6)
-    result = ref.solve(mesh, law, 0.01, motion="spin", tol=1e-4)
+    result = stokes3d.solve(mesh, law, 0.01, motion="spin", tol=1e-4)
     q = (A / B) ** (2 / 0.6)
     exact = ref.power_law_couette_torque(1.0, 0.6, 0.01 / A, A, B)
     assert -result.torque / rig.fill == pytest.approx(exact, rel=polygon_error(2 + 2 * q / (1 - q), 0.006))
@@ -98,20 +100,20 @@ def test_stir_in_the_cup_dissipates_the_drags_work():
     keeps it to round-off. The paper's rig on 6 mm cells, 1 Pa·s at 0.1 m/s; its rod is h/a = 8.4 radii long, so
     the tip's and the free surface's end effects move the drag from the slice's F' h by a few per cent (1.6 % on
     converged meshes, docs/validation.md), within 10 % here."""
-    mesh = ref.build_mesh(PAPER, 0.006)
-    assert {name: len(mesh.mesh.boundaries[name]) > 0 for name in ref.BOUNDARIES} == dict.fromkeys(ref.BOUNDARIES,
+    mesh = stokes3d.build_mesh(PAPER, 0.006)
+    assert {name: len(mesh.mesh.boundaries[name]) > 0 for name in stokes3d.BOUNDARIES} == dict.fromkeys(stokes3d.BOUNDARIES,
                                                                                                     True)
-    result = ref.solve(mesh, 1.0, 0.1)
+    result = stokes3d.solve(mesh, 1.0, 0.1)
     assert result.dissipation == pytest.approx(result.drag * 0.1, rel=1e-6)
-    slab = ref.slab_force(PAPER, 0.006, 1.0, 0.1)
+    slab = stokes3d.slab_force(PAPER, 0.006, 1.0, 0.1)
     assert result.drag / (slab.drag * PAPER.immersion) == pytest.approx(1.0, abs=0.1)
 
 
 def test_krylov_solver_agrees_with_the_direct_one():
     """MINRES with the AMG and pressure-mass preconditioner solves the same system: the drag agrees to 1e-6."""
-    mesh = ref.build_mesh(PAPER, 0.008)
-    direct = ref.solve(mesh, 1.0, 0.1, solver="direct")
-    krylov = ref.solve(mesh, 1.0, 0.1, solver="krylov")
+    mesh = stokes3d.build_mesh(PAPER, 0.008)
+    direct = stokes3d.solve(mesh, 1.0, 0.1, solver="direct")
+    krylov = stokes3d.solve(mesh, 1.0, 0.1, solver="krylov")
     assert krylov.drag == pytest.approx(direct.drag, rel=1e-6)
     assert krylov.torque == pytest.approx(direct.torque, rel=1e-4, abs=1e-9)
 
@@ -122,8 +124,8 @@ def test_inertial_slab_matches_the_2d_reference_at_steady_state():
     3.3678 N/m and radial force +0.3038 N/m (converged to 0.02 %). The drag within the issue's 2 %; the radial
     force, an inertial force a tenth of the drag, converges as h^2.1 (4.2 % low on 6 mm cells, 0.4 % on 2 mm), so
     within twice its 4 mm estimate 4.2 % × (4/6)², 3.7 %."""
-    rig = ref.Rig(cup_radius=0.0425, orbit=0.015)
-    result = ref.slab_force(rig, 0.004, 1.0, 0.1, inertia=True)
+    rig = stokes3d.CupRig(cup_radius=0.0425, orbit=0.015)
+    result = stokes3d.slab_force(rig, 0.004, 1.0, 0.1, inertia=True)
     assert result.drag == pytest.approx(3.3678, rel=0.02)
     assert result.radial == pytest.approx(0.3038, rel=2 * 0.042 * (4 / 6) ** 2)
     assert 2 < result.iterations < 20
@@ -135,4 +137,4 @@ def test_a_fixed_point_that_has_not_converged_raises():
 
     _, mesh = centred(0.008)
     with pytest.raises(RuntimeError, match="did not converge in 2 iterations"):
-        ref.solve(mesh, PowerLaw(k=1.0, n=0.6, shear_rate_reg=1e-6), 0.01, motion="spin", max_iterations=2)
+        stokes3d.solve(mesh, PowerLaw(k=1.0, n=0.6, shear_rate_reg=1e-6), 0.01, motion="spin", max_iterations=2)

@@ -144,7 +144,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
              coarse: SimConfig | None = None, fine_iterations: int = 3,
              sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR,
-             size_estimate: bool = True, workers: int = 1, overwrite: bool = False) -> Identification:
+             size_estimate: bool = True, slice_correction: bool = True, workers: int = 1,
+             overwrite: bool = False) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -171,6 +172,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             (``uncertainty``; 0: the intervals hold the noise only).
         size_estimate: also estimate the Newtonian viscosity from the size of the reading (``magnitude``), beside
             the fits; a caller that reads only the fits (the diagnosis) saves its simulations with False.
+        slice_correction: a 2-D fit reads F'_2D h C, C the slice's correction for the recording's rig (False:
+            F'_2D h, the paper's extruded slice, whose error docs/accuracy.md measures).
         workers: processes that run the fits side by side (1: in this process).
         overwrite: start afresh, replacing a checkpoint of another recording or of other settings.
     """
@@ -183,13 +186,14 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, window, holdout_fraction)
     windows.dead_start.require_signal()
-    problem = StirProblem(recording, config, density_report["value"], windows)
+    problem = StirProblem(recording, config, density_report["value"], windows, corrected=slice_correction)
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
     sensor = SensorNuisance(tuple(sensor_nuisance))
     settings = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
                 "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
                 "max_iterations": max_iterations, **config.numerics(), "density": density_report["value"],
-                "slice_correction": slice_correction_table()["coefficients"] if config.dim == 2 else None,
+                "slice_correction": (slice_correction_table()["coefficients"] if config.dim == 2 and slice_correction
+                                     else None),
                 "shear_rate_probes": PROBE_INDEX_STEP,
                 "coarse": None if coarse is None else {**coarse.numerics(), "fine_iterations": fine_iterations}}
     state = _load_checkpoint(checkpoint, settings, recording_label(recording), overwrite)
@@ -242,7 +246,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     if coarse is None:
         stages = (Stage("fit", problem, max_iterations),)
     else:
-        stages = (Stage("coarse", StirProblem(recording, coarse, density_report["value"], windows), max_iterations),
+        stages = (Stage("coarse", problem.with_config(coarse), max_iterations),
                   Stage("fine", problem, fine_iterations))
     tracker = Progress(_expected_simulations(stages, names, state, size_estimate), bar=progress, log_dir=log_dir)
     with Workers(workers, on_event) as pool:

@@ -198,11 +198,13 @@ class StirProblem:
             reads: a blank recording replays its rod path).
         max_samples: at most this many measured samples are compared (evenly thinned; the force is resampled
             from the simulation, so thinning loses nothing the simulation resolves).
+        corrected: a 2-D slice's force is F'_2D h C (False: F'_2D h, the paper's extruded slice).
     """
 
     def __init__(self, recording: Recording, config: SimConfig, density: float, windows: Windows | None = None,
-                 *, max_samples: int = 2000):
+                 *, max_samples: int = 2000, corrected: bool = True):
         self.recording = recording
+        self.corrected = bool(corrected)
         self.config = config
         self.density = float(density)
         self.windows = windows or Windows(float(recording.t[0]), float(recording.t[-1]), float(recording.t[-1]))
@@ -237,8 +239,8 @@ class StirProblem:
         """C = F_3D / (F'_2D h) of this recording's rig (``diffstir.slice_correction``) for the flow ``material``
         makes at the stir's shear rate U/a: its local flow index n = 1 + d ln η / d ln γ̇ and Reynolds number
         ρ U 2a / η there (``flow_state``); n = 1, Re = 0 without a material or for one that is not a rheology law.
-        None in 3-D, where nothing is sliced."""
-        if self.config.dim != 2:
+        None in 3-D, where nothing is sliced, and for an uncorrected problem (``corrected``)."""
+        if self.config.dim != 2 or not self.corrected:
             return None
         return stir_correction(self.rig, material, self.density, self.stir_speed, self.orbit_radius)
 
@@ -256,7 +258,8 @@ class StirProblem:
 
     def with_config(self, config: SimConfig) -> "StirProblem":
         """The same recording, samples and density, simulated with ``config``."""
-        return StirProblem(self.recording, config, self.density, self.windows, max_samples=self.max_samples)
+        return StirProblem(self.recording, config, self.density, self.windows, max_samples=self.max_samples,
+                           corrected=self.corrected)
 
     def frozen(self, material: nn.Module) -> "StirProblem":
         """This problem with the sound speed that ``material`` gets (``SimConfig.compressibility``) held fixed: a

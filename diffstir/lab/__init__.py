@@ -2,12 +2,14 @@
 
 ``synthesise`` simulates a fluid (``Fluid``: any rheology law or a tabulated flow curve, and a density) stirred
 along a programme (``stirring_programme``) in the rig, with optional hidden physics (``HiddenPhysics``:
-thixotropy, viscoelasticity, temperature drift; a slipping rod), reads the force through a sensor model
+thixotropy, viscoelasticity, temperature drift; a slipping rod), or by finite elements in the 3-D cup
+(``FiniteElementTruth``, ``diffstir.lab.fe_truth``), reads the force through a sensor model
 (``SensorModel``) and synthesises the Archimedes density readings; ``write_lab_recording`` saves the recording in
 the project's format and the truth to ``<recording>.truth.json`` beside it. ``synthesise_blend`` stirs two fluids
 together (``Blend``; docs/mixing.md). See docs/virtual-lab.md.
 """
 
+from diffstir.lab.fe_truth import FiniteElementTruth
 from diffstir.lab.blend import Blend, BlendMaterial, simulate_blend, synthesise_blend
 from diffstir.lab.fluid import Fluid, make_fluid_law
 from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
@@ -21,6 +23,7 @@ from diffstir.lab.synth import (
 __all__ = [
     "Blend",
     "BlendMaterial",
+    "FiniteElementTruth",
     "Fluid",
     "HiddenPhysics",
     "HiddenPhysicsSpec",

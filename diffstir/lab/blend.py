@@ -231,8 +231,10 @@ def simulate_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = No
     fluid = Fluid(name=f"blend of {blend.first.name} and {blend.second.name}", density=blend.density,
                   law=blend.first.law)
     truth = TruthSimulation(fluid, trajectory, rig, sim_config, HiddenPhysicsSpec(), np.concatenate(times),
-                            np.concatenate(forces) * length, dt, int(state.num_particles),
-                            list(scene.grid.shape), sim_config.dim == 2, factor)
+                            np.concatenate(forces) * length, dt,
+                            {"method": f"MLS-MPM, {sim_config.dim}-D, two fluids (diffstir.lab.blend)",
+                             "particles": int(state.num_particles), "grid": list(scene.grid.shape)},
+                            sim_config.dim == 2, factor)
     return truth, BlendHistory(stats[:, 0], stats[:, 1], cov, stats[:, 3], mixing_time)
 
 

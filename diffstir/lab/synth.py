@@ -1,10 +1,14 @@
 """Synthesise a recording: simulate the truth, read it through a sensor model, measure the density, and keep the
 truth in a separate file.
 
-The truth simulation is the fitting simulator (``StirringSimulator``) with the fluid's law, optionally wrapped in
-``HiddenPhysics`` and with a slipping rod, at the resolution of its own ``SimConfig`` (the lab's default is finer
-than the fitting default). A 2-D slice gives a force per unit length of rod [N/m]; the lab multiplies it by the
-rod's immersion depth [m] to get the force on the rod [N] (an extruded slice: no tip or free-surface effects).
+The truth is one of two simulations, chosen by the type of ``sim_config``:
+
+* a ``SimConfig``: the fitting simulator (``StirringSimulator``) with the fluid's law, optionally wrapped in
+  ``HiddenPhysics`` and with a slipping rod, at its own resolution (the lab's default is finer than the fitting
+  default). A 2-D slice gives a force per unit length [N/m], which the lab turns into the force on the rod [N] as
+  the fit does, F = F'_2D h C (h the immersion depth [m], C the slice correction, ``diffstir.slice_correction``).
+* a ``FiniteElementTruth``: the stir in the 3-D cup by finite elements (``diffstir.lab.fe_truth``), which shares no
+  code with the fitting simulator; generalized-Newtonian fluids on a circle only.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ import numpy as np
 import torch
 
 from diffstir.density import DEPTH_RESOLUTION
+from diffstir.errors import ConfigError
+from diffstir.lab.fe_truth import FiniteElementTruth, fe_stir_force
 from diffstir.lab.fluid import Fluid
 from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from diffstir.lab.sensor import SensorModel, quantise
@@ -117,18 +123,18 @@ def density_block(density: float, rig: Rig, sensor: SensorModel, rng: np.random.
 @dataclass
 class TruthSimulation:
     """A truth simulation before any sensor reads it: the horizontal force on the rod ``force`` [N] (S, 2) at
-    mid-step ``times`` [s] (S,), and what made it. One truth simulation can be read by many sensor models."""
+    ``times`` [s] (S,), and what made it (``discretisation``: particles and grid, or the finite elements' mesh).
+    One truth simulation can be read by many sensor models."""
 
     fluid: Fluid
     trajectory: Trajectory
     rig: Rig
-    sim_config: SimConfig
+    sim_config: SimConfig | FiniteElementTruth
     physics: HiddenPhysicsSpec
     times: np.ndarray
     force: np.ndarray
     dt: float
-    particles: int
-    grid: list[int]
+    discretisation: dict
     per_unit_length: bool
     slice_factor: float = 1.0  # C applied to a 2-D truth's force (``diffstir.slice_correction``) [1]
 
@@ -136,11 +142,18 @@ class TruthSimulation:
 def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None,
                    sim_config: SimConfig | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
                    cache_dir: str | Path | None = None) -> TruthSimulation:
-    """Simulate ``fluid`` stirred along ``trajectory`` in ``rig`` with the truth ``sim_config`` and hidden
-    ``physics`` (``seed`` seeds torch)."""
+    """Simulate ``fluid`` stirred along ``trajectory`` in ``rig`` with the truth ``sim_config`` (a ``SimConfig``
+    or a ``FiniteElementTruth``) and hidden ``physics`` (``seed`` seeds torch)."""
     rig = rig or Rig()
     sim_config = sim_config or SimConfig(dim=2)
     physics = physics or HiddenPhysicsSpec()
+    if isinstance(sim_config, FiniteElementTruth):
+        if physics.in_material or physics.slip_length > 0:
+            raise ConfigError("lab/physics: hidden physics needs an MPM truth (lab/sim=truth2d or truth3d); the 3-D "
+                              "finite-element truth (lab/sim=fe3d) holds a generalized-Newtonian law only")
+        stir = fe_stir_force(fluid, trajectory, rig, sim_config)
+        return TruthSimulation(fluid, trajectory, rig, sim_config, physics, stir.times, stir.force, stir.dt,
+                               stir.discretisation, per_unit_length=False)
     if physics.slip_length > 0:
         rig = replace(rig, rod=replace(rig.rod, slip_length=physics.slip_length))
     law = fluid.make_law()
@@ -158,8 +171,9 @@ def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = No
         factor = trajectory_correction(rig, material, fluid.density, trajectory, times).factor
         length = rig.rod.immersion_depth * factor
     force = result.force.double().cpu().numpy()[:, :2] * length
-    return TruthSimulation(fluid, trajectory, rig, sim_config, physics, times, force, result.dt,
-                           int(result.state.num_particles), list(simulator.scene.grid.shape),
+    discretisation = {"method": f"MLS-MPM, {sim_config.dim}-D (diffstir.mpm)",
+                      "particles": int(result.state.num_particles), "grid": list(simulator.scene.grid.shape)}
+    return TruthSimulation(fluid, trajectory, rig, sim_config, physics, times, force, result.dt, discretisation,
                            bool(result.per_unit_length), factor)
 
 
@@ -194,8 +208,9 @@ def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *,
         "density_measurement": density_truth,
         "programme": dict(programme) if programme is not None else None,
         "rig": asdict(rig),
-        "simulator": {"config": asdict(sim_config), "dt": truth_sim.dt, "steps": int(times.size),
-                      "particles": truth_sim.particles, "grid": truth_sim.grid,
+        "simulator": {"kind": "fe3d" if isinstance(sim_config, FiniteElementTruth) else f"mpm{sim_config.dim}d",
+                      "config": asdict(sim_config), "dt": truth_sim.dt, "steps": int(times.size),
+                      **truth_sim.discretisation,
                       "force_scale": ("2-D force per unit length times the rod's immersion depth [m] and the "
                                       "slice correction C (diffstir.slice_correction)"
                                       if truth_sim.per_unit_length else "3-D force"),

@@ -1,0 +1,193 @@
+"""Identification against a 3-D truth the simulator did not make (docs/accuracy.md, "Against a 3-D truth").
+
+Per case, a rig and a fluid: the virtual lab writes a recording whose force is the stir in the 3-D cup by finite
+elements (``lab/sim=fe3d``, conf/lab/sim/fe3d.yaml) read through the paper's sensor (conf/lab/sensor/paper.yaml,
+seed = case index), and the default fit (conf/fit.yaml: coarse2d then slice2d, the first 2 s, model error 0.03)
+identifies it with the fluid's own law, twice: with the slice correction (the default, F'_2D h C) and without it
+(the paper's extruded slice, F'_2D h). Reported per fit: the law's parameters with their 95 % intervals, the
+apparent viscosity at the fit's effective shear rate against the truth's there, the errors and whether the
+intervals hold the truth.
+
+Rigs: the project's default (conf/rig/paper.yaml on a 15 mm circle) and the study's ``shallow`` rig, both in the
+slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the study never saw. Fluids: Newtonian
+from 0.03 to 5 Pa·s at one speed; power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
+three speeds.
+
+    python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --jobs 2      # every case; resumes
+    python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
+    python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
+Needs the validation extra (``pip install -c constraints.txt -e ".[validation]"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+RAMP = 0.2  # s
+ONE_SPEED = [{"speed": 0.08, "duration": 2.0}]  # m/s, s
+THREE_SPEEDS = [{"speed": s, "duration": 0.7} for s in (0.04, 0.08, 0.16)]  # m/s, s: a factor 4 in speed
+RIGS = {  # cup radius, fill height, cup height, rod radius, immersion depth, circle radius [m]
+    "project": (0.0425, 0.13005, 0.165, 0.0125, 0.080, 0.015),
+    "shallow": (0.0475, 0.090, 0.120, 0.0125, 0.040, 0.020),
+    "held_out": (0.045, 0.095, 0.120, 0.011, 0.070, 0.022),
+}
+FLUIDS = {  # name: (density [kg/m³], law, programme)
+    "newtonian_0.03": (1000.0, {"name": "newtonian", "params": {"eta": 0.03}}, ONE_SPEED),
+    "newtonian_0.1": (1100.0, {"name": "newtonian", "params": {"eta": 0.1}}, ONE_SPEED),
+    "newtonian_1": (1200.0, {"name": "newtonian", "params": {"eta": 1.0}}, ONE_SPEED),
+    "newtonian_5": (1260.0, {"name": "newtonian", "params": {"eta": 5.0}}, ONE_SPEED),
+    "power_law_0.6": (1050.0, {"name": "power_law", "params": {"k": 1.5, "n": 0.6}}, THREE_SPEEDS),
+    "power_law_1.3": (1150.0, {"name": "power_law", "params": {"k": 0.3, "n": 1.3}}, THREE_SPEEDS),
+    "carreau": (1100.0, {"name": "carreau", "params": {"eta0": 2.0, "eta_inf": 0.01, "lam": 1.0, "n": 0.5}},
+                THREE_SPEEDS),
+    "herschel_bulkley": (1100.0, {"name": "herschel_bulkley", "params": {"tau_y": 1.0, "k": 0.8, "n": 0.6}},
+                         THREE_SPEEDS),
+}
+CASES = [f"{rig}/{fluid}" for fluid in FLUIDS for rig in RIGS]
+
+
+def rig_of(name: str):
+    from diffstir.rig import Cup, Rig, Rod
+
+    cup_radius, fill, height, rod_radius, immersion, _ = RIGS[name]
+    return Rig(cup=Cup(radius=cup_radius, fill_height=fill, height=height),
+               rod=Rod(radius=rod_radius, immersion_depth=immersion, length=0.25))
+
+
+def run_case(index: int, case: str) -> dict:
+    """One case: the 3-D truth recording, then the fit with and without the slice correction."""
+    import torch
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from diffstir.identify import identify
+    from diffstir.lab import FiniteElementTruth, Fluid, SensorModel, stirring_programme, synthesise
+
+    torch.set_num_threads(1)
+    rig_name, fluid_name = case.split("/")
+    density, law, programme = FLUIDS[fluid_name]
+    rig = rig_of(rig_name)
+    fluid = Fluid(name=fluid_name, density=density, law=law)
+    trajectory = stirring_programme(programme, radius=RIGS[rig_name][-1], ramp_time=RAMP)
+    truth_config = FiniteElementTruth(**{k: v for k, v in yaml.safe_load((CONF / "lab/sim/fe3d.yaml").read_text())
+                                         .items() if k != "_target_"})
+    sensor = SensorModel(**yaml.safe_load((CONF / "lab/sensor/paper.yaml").read_text()))
+    started = time.perf_counter()
+    lab = synthesise(fluid, trajectory, rig=rig, sim_config=truth_config, sensor=sensor, seed=index)
+    truth_seconds = time.perf_counter() - started
+    fit_cfg = yaml.safe_load((CONF / "fit.yaml").read_text())["fit"]
+    fine = instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml"))
+    coarse = instantiate(OmegaConf.load(CONF / "sim/coarse2d.yaml"))
+    true_law = fluid.make_law().double()
+    row = {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
+           "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": lab.truth["simulator"],
+           "truth_seconds": truth_seconds}
+    for corrected in (True, False):
+        t0 = time.perf_counter()
+        result = identify(lab.recording, (law["name"],), config=fine, coarse=coarse, baseline=False,
+                          window=fit_cfg["window"], holdout_fraction=fit_cfg["holdout_fraction"],
+                          max_iterations=fit_cfg["max_iterations"], fine_iterations=fit_cfg["fine_iterations"],
+                          optimizer=fit_cfg["optimizer"], selection=fit_cfg["selection"],
+                          sensor_nuisance=tuple(fit_cfg["sensor_nuisance"]), model_error=fit_cfg["model_error"],
+                          slice_correction=corrected, size_estimate=False, progress=False)
+        summary = result.summary()
+        fitted = summary["laws"][law["name"]]
+        apparent = summary["apparent_viscosity"]
+        rate = apparent["effective_shear_rate"]
+        eta_true = float(true_law(torch.tensor([rate], dtype=torch.float64))[0])
+        lo, hi = apparent["at_effective_shear_rate_ci95"]
+        row["corrected" if corrected else "slice_only"] = {
+            "params": fitted["params"], "ci95": fitted["ci95"], "identifiable": fitted["identifiable"],
+            "effective_shear_rate": rate, "eta": apparent["at_effective_shear_rate"], "eta_ci95": [lo, hi],
+            "eta_true": eta_true, "error": apparent["at_effective_shear_rate"] / eta_true - 1.0,
+            "covered": lo <= eta_true <= hi, "slice_correction": summary["slice_correction"],
+            "viscous_share": summary["resolvable"].get("viscous_share"), "seconds": time.perf_counter() - t0,
+            **({"n_error": fitted["params"]["n"] - law["params"]["n"],
+                "n_covered": _holds(fitted["ci95"].get("n"), law["params"]["n"])} if "n" in law["params"] else {}),
+        }
+    return row
+
+
+def _holds(interval, value: float) -> bool:
+    return interval is not None and interval[0] <= value <= interval[1]
+
+
+def table(rows: list[dict]) -> str:
+    """The markdown table of ``rows``: per case the corrected fit and the slice-only one."""
+    lines = ["| rig | fluid | γ̇_eff [1/s] | η true [Pa·s] | η fitted [95 % CI] (corrected) | error | holds | C | "
+             "η slice-only [95 % CI] | error | holds | n error (corrected / slice-only) | truth [s] | fits [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: CASES.index(r["case"]) if r["case"] in CASES else len(CASES)):
+        c, s = r["corrected"], r["slice_only"]
+        n = (f"{c['n_error']:+.3f} / {s['n_error']:+.3f}" if "n_error" in c else "-")
+        factor = c["slice_correction"]["factor"] if c["slice_correction"] else float("nan")
+        lines.append(
+            f"| {r['rig']} | {r['fluid']} | {c['effective_shear_rate']:.3g} | {c['eta_true']:.4g} | "
+            f"{c['eta']:.4g} [{c['eta_ci95'][0]:.4g}, {c['eta_ci95'][1]:.4g}] | {100 * c['error']:+.1f} % | "
+            f"{'yes' if c['covered'] else 'no'} | {factor:.3f} | "
+            f"{s['eta']:.4g} [{s['eta_ci95'][0]:.4g}, {s['eta_ci95'][1]:.4g}] | {100 * s['error']:+.1f} % | "
+            f"{'yes' if s['covered'] else 'no'} | {n} | {r['truth_seconds']:.0f} | "
+            f"{c['seconds']:.0f} + {s['seconds']:.0f} |")
+    covered = [r["corrected"]["covered"] for r in rows]
+    slice_covered = [r["slice_only"]["covered"] for r in rows]
+    if rows:
+        lines.append("")
+        lines.append(f"Intervals holding the truth: corrected {sum(covered)}/{len(covered)}, slice-only "
+                     f"{sum(slice_covered)}/{len(slice_covered)}.")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", nargs="+", default=CASES, choices=CASES, metavar="RIG/FLUID",
+                        help=f"cases to run (default: all {len(CASES)})")
+    parser.add_argument("--out", type=Path, help="the JSON rows (resumed: finished cases are skipped)")
+    parser.add_argument("--jobs", type=int, default=1, help="cases side by side, one thread each")
+    parser.add_argument("--table", type=Path, help="print the tables of an existing JSON file and exit")
+    args = parser.parse_args()
+    if args.table:
+        print(table(json.loads(args.table.read_text())["rows"]))
+        return
+    data = json.loads(args.out.read_text()) if args.out and args.out.exists() else {
+        "description": __doc__.splitlines()[0], "command": "python scripts/truth3d_benchmark.py "
+        + " ".join(sys.argv[1:]), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.platform()}",
+        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "rows": []}
+    done = {r["case"] for r in data["rows"]}
+    todo = [(CASES.index(c), c) for c in args.cases if c not in done]
+    print(f"{len(todo)} cases to run ({len(done)} done)", flush=True)
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs), mp_context=get_context("spawn")) as pool:
+        futures = {pool.submit(run_case, i, c): c for i, c in todo}
+        for future in as_completed(futures):
+            try:
+                row = future.result()
+            except Exception as error:  # a failed case is reported and the others go on
+                print(f"{futures[future]}: failed: {type(error).__name__}: {error}", flush=True)
+                continue
+            data["rows"].append(row)
+            data["finished"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+            if args.out:
+                args.out.parent.mkdir(parents=True, exist_ok=True)
+                tmp = args.out.with_suffix(".tmp")
+                tmp.write_text(json.dumps(data, indent=1, default=float))
+                tmp.replace(args.out)
+            c = row["corrected"]
+            print(f"{row['case']}: η {c['eta']:.4g} against {c['eta_true']:.4g} ({100 * c['error']:+.1f} %), "
+                  f"slice-only {100 * row['slice_only']['error']:+.1f} %", flush=True)
+    print(table(data["rows"]))
+
+
+if __name__ == "__main__":
+    main()
