@@ -24,7 +24,8 @@ import numpy as np
 import scipy.sparse as sp
 from skfem import Basis, MeshTet
 
-from diffstir.lab.stokes3d import CupRig, Result, RigMesh, build_mesh, slab_force, slab_mesh, solve
+from diffstir.lab.stokes3d import (CupRig, Result, RigMesh, build_mesh, slab_force, slab_mesh, solve,
+                                   stir_history)
 
 
 def couette_torque(viscosity: float, spin: float, a: float, b: float) -> float:
@@ -272,7 +273,7 @@ def run_check(name: str, args) -> None:
         return
     if name == "transient2d":
         sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from stir_reference import stir
+        from stir_reference import cosine_ramp, stir
 
         rig = CupRig(cup_radius=0.0425, orbit=0.015)
         steady = slab_force(rig, args.cell, 0.2, 0.1, inertia=True, verbose=args.verbose)
@@ -284,6 +285,21 @@ def run_check(name: str, args) -> None:
                   f"scripts/stir_reference.py from 2.5 to 4 s [N/m] | {ours:.5g} | {theirs:.5g} | "
                   f"{ours / theirs:.4f} | {steady.n_velocity} + {steady.n_pressure} | {time.time() - start:.0f} | "
                   f"{steady.memory_gib:.1f} |")
+        # the same start in time (stir_history on the slab), step by step against the 2-D reference's history
+        step = transient["step"]
+        times = np.concatenate([[0.0], transient["times"]])
+        scale, rate = cosine_ramp(times, transient["ramp_time"])
+        omega = transient["speed"] / transient["orbit"]
+        angle = np.concatenate([[0.0], np.cumsum(0.5 * step * omega * (scale[1:] + scale[:-1]))])
+        started = time.time()
+        history = stir_history(slab_mesh(rig, args.cell), 0.2, times, angle, omega * scale, omega * rate)
+        for t in (0.25, 0.5, 1.0, 2.0, 4.0):
+            i = int(np.argmin(abs(transient["times"] - t)))
+            ours, theirs = -history.frame_force[i + 1, 1], -transient["tangential"][i]
+            print(f"| drag at {t:g} s, 2-D stir from rest (0.5 s ramp), 0.2 Pa·s, slab in time "
+                  f"(stir_history, {step * 1e3:g} ms steps) against scripts/stir_reference.py [N/m] | {ours:.5g} | "
+                  f"{theirs:.5g} | {ours / theirs:.4f} | {history.n_velocity} + {history.n_pressure} | "
+                  f"{time.time() - started:.0f} | {history.memory_gib:.1f} |")
         return
     for label, computed, reference, result in check(name, args.cell, args.viscosity or 1.0, 0.01, args.verbose):
         print(f"| {label} | {computed:.6g} | {reference:.6g} | {computed / reference:.5f} | "

@@ -13,9 +13,12 @@ slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the stu
 from 0.03 to 5 Pa·s at one speed; power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
 three speeds.
 
-    python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --jobs 2      # every case; resumes
+    python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
     python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
+    python scripts/truth3d_benchmark.py --recordings outputs/truth3d --sim compressibility=0.003 --out /tmp/c.json
     python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
+``--recordings DIR`` keeps each case's recording and truth there (``DIR/<rig>_<fluid>``) and reuses them when
+present, so other fit settings (``--sim KEY=VALUE``, applied to both resolutions) run without the truth's cost.
 Needs the validation extra (``pip install -c constraints.txt -e ".[validation]"``).
 """
 
@@ -67,14 +70,19 @@ def rig_of(name: str):
                rod=Rod(radius=rod_radius, immersion_depth=immersion, length=0.25))
 
 
-def run_case(index: int, case: str) -> dict:
-    """One case: the 3-D truth recording, then the fit with and without the slice correction."""
+def run_case(index: int, case: str, recordings: Path | None = None, sim_settings: dict | None = None) -> dict:
+    """One case: the 3-D truth recording (kept in and reused from ``recordings``), then the fit with and without
+    the slice correction, both resolutions with ``sim_settings``."""
+    from dataclasses import replace
+
     import torch
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
     from diffstir.identify import identify
-    from diffstir.lab import FiniteElementTruth, Fluid, SensorModel, stirring_programme, synthesise
+    from diffstir.lab import (FiniteElementTruth, Fluid, SensorModel, stirring_programme, synthesise, truth_path,
+                              write_lab_recording)
+    from diffstir.recording import load_recording
 
     torch.set_num_threads(1)
     rig_name, fluid_name = case.split("/")
@@ -86,18 +94,25 @@ def run_case(index: int, case: str) -> dict:
                                          .items() if k != "_target_"})
     sensor = SensorModel(**yaml.safe_load((CONF / "lab/sensor/paper.yaml").read_text()))
     started = time.perf_counter()
-    lab = synthesise(fluid, trajectory, rig=rig, sim_config=truth_config, sensor=sensor, seed=index)
+    kept = recordings / case.replace("/", "_") if recordings else None
+    if kept is not None and kept.exists():
+        recording, truth = load_recording(kept), json.loads(truth_path(kept).read_text())
+    else:
+        lab = synthesise(fluid, trajectory, rig=rig, sim_config=truth_config, sensor=sensor, seed=index)
+        recording, truth = lab.recording, lab.truth
+        if kept is not None:
+            write_lab_recording(lab, kept)
     truth_seconds = time.perf_counter() - started
     fit_cfg = yaml.safe_load((CONF / "fit.yaml").read_text())["fit"]
-    fine = instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml"))
-    coarse = instantiate(OmegaConf.load(CONF / "sim/coarse2d.yaml"))
+    fine = replace(instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml")), **(sim_settings or {}))
+    coarse = replace(instantiate(OmegaConf.load(CONF / "sim/coarse2d.yaml")), **(sim_settings or {}))
     true_law = fluid.make_law().double()
     row = {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
-           "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": lab.truth["simulator"],
-           "truth_seconds": truth_seconds}
+           "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
+           "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}}
     for corrected in (True, False):
         t0 = time.perf_counter()
-        result = identify(lab.recording, (law["name"],), config=fine, coarse=coarse, baseline=False,
+        result = identify(recording, (law["name"],), config=fine, coarse=coarse, baseline=False,
                           window=fit_cfg["window"], holdout_fraction=fit_cfg["holdout_fraction"],
                           max_iterations=fit_cfg["max_iterations"], fine_iterations=fit_cfg["fine_iterations"],
                           optimizer=fit_cfg["optimizer"], selection=fit_cfg["selection"],
@@ -107,7 +122,8 @@ def run_case(index: int, case: str) -> dict:
         fitted = summary["laws"][law["name"]]
         apparent = summary["apparent_viscosity"]
         rate = apparent["effective_shear_rate"]
-        eta_true = float(true_law(torch.tensor([rate], dtype=torch.float64))[0])
+        with torch.no_grad():
+            eta_true = float(true_law(torch.tensor([rate], dtype=torch.float64))[0])
         lo, hi = apparent["at_effective_shear_rate_ci95"]
         row["corrected" if corrected else "slice_only"] = {
             "params": fitted["params"], "ci95": fitted["ci95"], "identifiable": fitted["identifiable"],
@@ -125,6 +141,13 @@ def _holds(interval, value: float) -> bool:
     return interval is not None and interval[0] <= value <= interval[1]
 
 
+def _verdict(fit: dict) -> str:
+    """Whether the fit's 95 % interval holds the truth; "not identifiable" where the fit says so."""
+    if not all(fit["identifiable"].values()):
+        return "not identifiable"
+    return "yes" if fit["covered"] else "no"
+
+
 def table(rows: list[dict]) -> str:
     """The markdown table of ``rows``: per case the corrected fit and the slice-only one."""
     lines = ["| rig | fluid | γ̇_eff [1/s] | η true [Pa·s] | η fitted [95 % CI] (corrected) | error | holds | C | "
@@ -137,16 +160,16 @@ def table(rows: list[dict]) -> str:
         lines.append(
             f"| {r['rig']} | {r['fluid']} | {c['effective_shear_rate']:.3g} | {c['eta_true']:.4g} | "
             f"{c['eta']:.4g} [{c['eta_ci95'][0]:.4g}, {c['eta_ci95'][1]:.4g}] | {100 * c['error']:+.1f} % | "
-            f"{'yes' if c['covered'] else 'no'} | {factor:.3f} | "
+            f"{_verdict(c)} | {factor:.3f} | "
             f"{s['eta']:.4g} [{s['eta_ci95'][0]:.4g}, {s['eta_ci95'][1]:.4g}] | {100 * s['error']:+.1f} % | "
-            f"{'yes' if s['covered'] else 'no'} | {n} | {r['truth_seconds']:.0f} | "
+            f"{_verdict(s)} | {n} | {r['truth_seconds']:.0f} | "
             f"{c['seconds']:.0f} + {s['seconds']:.0f} |")
-    covered = [r["corrected"]["covered"] for r in rows]
-    slice_covered = [r["slice_only"]["covered"] for r in rows]
     if rows:
+        counts = {k: [_verdict(r[k]) for r in rows] for k in ("corrected", "slice_only")}
         lines.append("")
-        lines.append(f"Intervals holding the truth: corrected {sum(covered)}/{len(covered)}, slice-only "
-                     f"{sum(slice_covered)}/{len(slice_covered)}.")
+        lines.append("Intervals holding the truth, of the identifiable fits: " + ", ".join(
+            f"{k.replace('_', '-')} {v.count('yes')}/{len(v) - v.count('not identifiable')}"
+            for k, v in counts.items()) + ".")
     return "\n".join(lines)
 
 
@@ -156,8 +179,12 @@ def main() -> None:
                         help=f"cases to run (default: all {len(CASES)})")
     parser.add_argument("--out", type=Path, help="the JSON rows (resumed: finished cases are skipped)")
     parser.add_argument("--jobs", type=int, default=1, help="cases side by side, one thread each")
+    parser.add_argument("--recordings", type=Path, help="keep (and reuse) each case's recording and truth here")
+    parser.add_argument("--sim", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="SimConfig settings for both fit resolutions (numbers), e.g. compressibility=0.003")
     parser.add_argument("--table", type=Path, help="print the tables of an existing JSON file and exit")
     args = parser.parse_args()
+    sim_settings = {k: float(v) for k, _, v in (item.partition("=") for item in args.sim)}
     if args.table:
         print(table(json.loads(args.table.read_text())["rows"]))
         return
@@ -169,7 +196,7 @@ def main() -> None:
     todo = [(CASES.index(c), c) for c in args.cases if c not in done]
     print(f"{len(todo)} cases to run ({len(done)} done)", flush=True)
     with ProcessPoolExecutor(max_workers=max(1, args.jobs), mp_context=get_context("spawn")) as pool:
-        futures = {pool.submit(run_case, i, c): c for i, c in todo}
+        futures = {pool.submit(run_case, i, c, args.recordings, sim_settings): c for i, c in todo}
         for future in as_completed(futures):
             try:
                 row = future.result()

@@ -41,6 +41,7 @@ def assert_refused(done, app: str, message: str) -> None:
     (["rectifier.checkpoint=missing.ckpt"], "rectifier.checkpoint = missing.ckpt: no such file"),
     (["fit.model_error=-0.1"], "fit.model_error = -0.1; expected a relative force error in [0, 1)"),
     (["fit.max_iterations=0"], "fit.max_iterations = 0; expected at least 1"),
+    (["fit.slice_correction=maybe"], "fit.slice_correction = 'maybe'; expected true or false"),
     (["threads=0"], "threads = 0; expected at least 1"),
     (["fit.windw=3"], "Could not override 'fit.windw'."),  # misspelt
     (["sim=slice3d"], "In 'fit': Could not find 'sim/slice3d' Available options in 'sim': coarse2d, fine3d"),
@@ -198,3 +199,19 @@ def test_a_recordings_warning_is_one_line_naming_the_app(tmp_path):
     assert done.returncode == 2 and len(lines) == 2, done.stderr[-3000:]
     assert lines[0].startswith("diffstir-fit: warning: ") and "operator" in lines[0]
     assert lines[1].startswith("diffstir-fit: error: ")
+
+
+def test_synth_refuses_hidden_physics_in_the_3d_truth_in_one_line_before_simulating(tmp_path):
+    done = run("diffstir-synth", "lab/sim=fe3d", "lab/physics=thixotropic", "out=lab", cwd=tmp_path, timeout=60.0)
+    assert_refused(done, "diffstir-synth", "lab/physics: hidden physics needs an MPM truth")
+    assert not (tmp_path / "lab").exists()
+
+
+def test_synth_refuses_a_programme_too_short_to_fit_before_simulating(tmp_path):
+    """A 0.8 s stir at 0.05 m/s on the 15 mm circle spans less than one stirring period: refused in one line before
+    the truth simulation (a 2 mm truth would take minutes), nothing written."""
+    done = run("diffstir-synth", "lab.programme.segments=[{speed:0.05,duration:0.8}]", "out=lab", cwd=tmp_path,
+               timeout=60.0)
+    assert_refused(done, "diffstir-synth", "lab/programme, lab/sensor: the recording they make would be invalid: "
+                                            "column 't' spans 0.8 s")
+    assert not (tmp_path / "lab").exists()

@@ -67,6 +67,20 @@ def test_the_fit_reads_the_slice_times_the_immersion_and_the_correction():
     assert deep.slice_correction(law).factor != pytest.approx(shallow.slice_correction(law).factor, abs=1e-3)
 
 
+def test_an_uncorrected_fit_reads_the_paper_s_extruded_slice():
+    """``corrected=False`` (``fit.slice_correction=false``): F = F' h, the corrected reading over C; no correction
+    is reported and none joins the intervals, and a coarser copy of the problem keeps the choice."""
+    law = Newtonian(eta=0.5)
+    corrected = StirProblem(blank_recording(0.08), FAST, 1000.0)
+    extruded = StirProblem(blank_recording(0.08), FAST, 1000.0, corrected=False)
+    with torch.no_grad():
+        reading, plain = corrected.simulate(law).numpy(), extruded.simulate(law).numpy()
+    moving = np.abs(plain) > 1e-4
+    np.testing.assert_allclose(reading[moving] / plain[moving], corrected.slice_correction(law).factor, rtol=1e-5)
+    assert extruded.slice_correction(law) is None
+    assert extruded.with_config(replace(FAST, dx=0.012)).slice_correction(law) is None
+
+
 def test_the_stir_scales_are_the_rods_speed_and_circle_while_it_stirs():
     # at rest for 0.1 s, then 0.3 s on a 15 mm circle at 0.06 m/s: the rest does not count
     t = np.linspace(0.0, 0.3, 301)

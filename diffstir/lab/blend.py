@@ -41,7 +41,7 @@ from torch import Tensor, nn
 
 from diffstir.lab.fluid import Fluid
 from diffstir.lab.sensor import SensorModel
-from diffstir.lab.synth import HiddenPhysicsSpec, LabRecording, TruthSimulation, read_truth
+from diffstir.lab.synth import HiddenPhysicsSpec, LabRecording, TruthSimulation, check_programme, read_truth
 from diffstir.mixing.rule import lederer_roegiers
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.mpm.grid import quadratic_stencil
@@ -253,7 +253,9 @@ def synthesise_blend(blend: Blend, trajectory: Trajectory, *, rig: Rig | None = 
                      name: str | None = None, label: str | None = None, programme: Mapping | None = None,
                      cache_dir=None) -> LabRecording:
     """A recording of ``blend`` stirred along ``trajectory`` read through ``sensor``; its truth holds the blend and
-    the mixing's time courses (``truth["blend"]``)."""
+    the mixing's time courses (``truth["blend"]``); a programme whose recording would be invalid is refused first
+    (``check_programme``)."""
+    check_programme(blend.first, trajectory, rig, sensor)
     truth_sim, history = simulate_blend(blend, trajectory, rig=rig, sim_config=sim_config, seed=seed,
                                         cache_dir=cache_dir)
     lab = read_truth(truth_sim, sensor, seed=seed, name=name, label=label, programme=programme)

@@ -14,6 +14,7 @@ The truth is one of two simulations, chosen by the type of ``sim_config``:
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -23,6 +24,7 @@ import torch
 
 from diffstir.density import DEPTH_RESOLUTION
 from diffstir.errors import ConfigError
+from diffstir.recording import RecordingError
 from diffstir.lab.fe_truth import FiniteElementTruth, fe_stir_force
 from diffstir.lab.fluid import Fluid
 from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
@@ -221,12 +223,27 @@ def read_truth(truth_sim: TruthSimulation, sensor: SensorModel | None = None, *,
     return LabRecording(rec, truth, times, truth_sim.force)
 
 
+def check_programme(fluid: Fluid, trajectory: Trajectory, rig: Rig | None = None,
+                    sensor: SensorModel | None = None) -> None:
+    """Raise ConfigError, before any simulation, when the recording ``sensor`` would make of ``trajectory`` is
+    invalid (too short for one stirring period, too sparse): the recording of a silent truth, validated."""
+    rig, times = rig or Rig(), trajectory.t
+    silent = TruthSimulation(fluid, trajectory, rig, SimConfig(dim=2), HiddenPhysicsSpec(), times,
+                             np.zeros((times.size, 2)), float(times[1] - times[0]), {}, False)
+    try:
+        read_truth(silent, sensor, name="programme")
+    except RecordingError as error:
+        problem = re.sub(r"^<unsaved recording 'programme'> \S+: ", "", str(error))
+        raise ConfigError(f"lab/programme, lab/sensor: the recording they make would be invalid: {problem}") from None
+
+
 def synthesise(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None, sim_config: SimConfig | None = None,
                sensor: SensorModel | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
                name: str | None = None, label: str | None = None, programme: Mapping | None = None,
                cache_dir: str | Path | None = None) -> LabRecording:
     """Simulate the truth (``simulate_truth``) and read it through ``sensor`` (``read_truth``) with random numbers
-    from ``seed``."""
+    from ``seed``; a programme whose recording would be invalid is refused first (``check_programme``)."""
+    check_programme(fluid, trajectory, rig, sensor)
     truth_sim = simulate_truth(fluid, trajectory, rig=rig, sim_config=sim_config, physics=physics, seed=seed,
                                cache_dir=cache_dir)
     return read_truth(truth_sim, sensor, seed=seed, name=name, label=label, programme=programme)
