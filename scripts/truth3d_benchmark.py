@@ -17,6 +17,12 @@ three speeds.
     python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
     python scripts/truth3d_benchmark.py --recordings outputs/truth3d --sim compressibility=0.003 --out /tmp/c.json
     python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
+    python scripts/truth3d_benchmark.py --compare project/newtonian_0.1           # where the forces differ
+``--compare RIG/FLUID`` locates a mismatch: the rod's force over the case's stir in the frame turning with it
+(drag against the motion, radial outwards; means over windows) from the 3-D finite elements, the same elements'
+2-D slab times the immersion, and the fitting simulator's default 2-D slice times the immersion, all at the truth's
+law, before any sensor or fit.
+
 ``--recordings DIR`` keeps each case's recording and truth there (``DIR/<rig>_<fluid>``) and reuses them when
 present, so other fit settings (``--sim KEY=VALUE``, applied to both resolutions) run without the truth's cost.
 Needs the validation extra (``pip install -c constraints.txt -e ".[validation]"``).
@@ -60,6 +66,7 @@ FLUIDS = {  # name: (density [kg/m³], law, programme)
                          THREE_SPEEDS),
 }
 CASES = [f"{rig}/{fluid}" for fluid in FLUIDS for rig in RIGS]
+RECTIFIER = ROOT / "checkpoints" / "rectifier" / "rectifier.ckpt"
 
 
 def rig_of(name: str):
@@ -83,6 +90,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     from diffstir.lab import (FiniteElementTruth, Fluid, SensorModel, stirring_programme, synthesise, truth_path,
                               write_lab_recording)
     from diffstir.recording import load_recording
+    from diffstir.rectifier.apply import load_rectifier, refine
 
     torch.set_num_threads(1)
     rig_name, fluid_name = case.split("/")
@@ -134,7 +142,65 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
             **({"n_error": fitted["params"]["n"] - law["params"]["n"],
                 "n_covered": _holds(fitted["ci95"].get("n"), law["params"]["n"])} if "n" in law["params"] else {}),
         }
+        if corrected:  # the shipped rectifier on the preliminary estimate, as diffstir-fit applies it
+            rectifier, metadata = load_rectifier(RECTIFIER)
+            refined = refine(rectifier, metadata, result.preliminary, result.density["value"], str(RECTIFIER))
+            row["rectifier"] = {"preliminary": refined["preliminary"], "value": refined["value"],
+                                "note": refined["note"], "eta_true": eta_true,
+                                "effective_shear_rate": result.preliminary.get("effective_shear_rate", rate)}
     return row
+
+
+def compare(case: str, windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0))) -> str:
+    """The markdown table of ``--compare``: mean drag and radial force [N] over ``windows`` [s]."""
+    import numpy as np
+    import torch
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from diffstir.lab import FiniteElementTruth, Fluid, stirring_programme, stokes3d
+    from diffstir.lab.fe_truth import circle_motion
+    from diffstir.mpm import StirringSimulator
+
+    torch.set_num_threads(1)
+    rig_name, fluid_name = case.split("/")
+    density, law, programme = FLUIDS[fluid_name]
+    rig, orbit = rig_of(rig_name), RIGS[rig_name][-1]
+    fluid = Fluid(name=fluid_name, density=density, law=law)
+    trajectory = stirring_programme(programme, radius=orbit, ramp_time=RAMP)
+    config = FiniteElementTruth(**{k: v for k, v in yaml.safe_load((CONF / "lab/sim/fe3d.yaml").read_text())
+                                   .items() if k != "_target_"})
+    times = np.arange(0.0, trajectory.t[-1] + config.dt / 2, config.dt)
+    _, angle, rate, acceleration = circle_motion(trajectory, times)
+    cup = stokes3d.CupRig.of(rig, orbit)
+    fe_law = law["params"]["eta"] if law["name"] == "newtonian" else fluid.make_law()
+    forces = {}
+    for label, mesh in (("3-D finite elements", stokes3d.build_mesh(cup, config.cell, growth=config.growth)),
+                        ("2-D slab × h", stokes3d.slab_mesh(cup, 0.003))):
+        history = stokes3d.stir_history(mesh, fe_law, times, angle, rate, acceleration, density=density)
+        scale = cup.immersion if mesh.thickness else 1.0
+        along = np.where(rate < 0, -1.0, 1.0)  # the frame's y is +θ, the motion's direction for Ω > 0
+        forces[label] = (times, -along * history.frame_force[:, 1] * scale, history.frame_force[:, 0] * scale)
+    simulator = StirringSimulator(fluid.make_law(), rig, instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml")),
+                                  density=density)
+    with torch.no_grad():
+        result = simulator(trajectory)
+    t = result.times.numpy()
+    force = result.force.double().numpy()[:, :2] * rig.rod.immersion_depth
+    theta = np.interp(t, times, angle)
+    along = np.where(np.interp(t, times, rate) < 0, -1.0, 1.0)
+    forces["MPM sim=slice2d × h"] = (t, -along * (-np.sin(theta) * force[:, 0] + np.cos(theta) * force[:, 1]),
+                                     np.cos(theta) * force[:, 0] + np.sin(theta) * force[:, 1])
+    lines = ["| force [N] | " + " | ".join(f"({a:g}, {b:g}] s" for a, b in windows) + " |",
+             "|---|" + "---|" * len(windows)]
+    for part, index in (("drag", 1), ("radial", 2)):
+        for label, columns in forces.items():
+            cells = []
+            for a, b in windows:
+                inside = (columns[0] > a) & (columns[0] <= b)
+                cells.append(f"{columns[index][inside].mean():.4g}")
+            lines.append(f"| {part}, {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def _holds(interval, value: float) -> bool:
@@ -183,7 +249,12 @@ def main() -> None:
     parser.add_argument("--sim", nargs="+", default=[], metavar="KEY=VALUE",
                         help="SimConfig settings for both fit resolutions (numbers), e.g. compressibility=0.003")
     parser.add_argument("--table", type=Path, help="print the tables of an existing JSON file and exit")
+    parser.add_argument("--compare", choices=CASES, metavar="RIG/FLUID",
+                        help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
     args = parser.parse_args()
+    if args.compare:
+        print(compare(args.compare))
+        return
     sim_settings = {k: float(v) for k, _, v in (item.partition("=") for item in args.sim)}
     if args.table:
         print(table(json.loads(args.table.read_text())["rows"]))
