@@ -37,7 +37,7 @@ import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import signal
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -203,6 +203,22 @@ def compare(case: str, windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), 
     return "\n".join(lines)
 
 
+def _attempt(job: tuple) -> tuple[str, dict | None, str]:
+    """``run_case`` in a worker: (case, row, "") or (case, None, the error) so that one failure stops no other."""
+    index, case, recordings, sim_settings = job
+    try:
+        return case, run_case(index, case, recordings, sim_settings), ""
+    except Exception as error:
+        return case, None, f"{type(error).__name__}: {error}"
+
+
+def _number_or_text(value: str) -> float | str:
+    try:
+        return float(value)
+    except ValueError:
+        return value
+
+
 def _holds(interval, value: float) -> bool:
     return interval is not None and interval[0] <= value <= interval[1]
 
@@ -239,6 +255,41 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def rectifier_table(rows: list[dict]) -> str:
+    """The shipped rectifier against the 3-D truth: |relative error| of the preliminary estimate (before) and of the
+    refined one (after, where the rectifier refines), MAE, RMSE, median and p90, by fluid; beside them the MAE of
+    the fitted law's apparent viscosity (the report's answer) on the same cases."""
+    import numpy as np
+
+    lines = ["| fluid | cases | refined | before: MAE | RMSE | median | p90 | after: MAE | RMSE | median | p90 | "
+             "fitted law: MAE |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    groups: dict[str, list[dict]] = {}
+    for r in sorted(rows, key=lambda r: list(FLUIDS).index(r["fluid"])):
+        if "rectifier" in r:
+            groups.setdefault(r["fluid"], []).append({**r["rectifier"], "fit_error": r["corrected"]["error"]})
+    groups["all"] = [x for entries in list(groups.values()) for x in entries]
+
+    def stats(errors) -> str:
+        e = np.abs(np.asarray(errors, dtype=float))
+        if e.size == 0:
+            return "- | - | - | -"
+        return (f"{100 * e.mean():.1f} % | {100 * np.sqrt((e ** 2).mean()):.1f} % | {100 * np.median(e):.1f} % | "
+                f"{100 * np.percentile(e, 90):.1f} %")
+
+    for fluid, entries in groups.items():
+        refined = [x for x in entries if x["value"] is not None]
+        before = [x["preliminary"] / x["eta_true"] - 1 for x in refined]
+        after = [x["value"] / x["eta_true"] - 1 for x in refined]
+        fitted = np.abs([x["fit_error"] for x in refined])
+        lines.append(f"| {fluid} | {len(entries)} | {len(refined)} | {stats(before)} | {stats(after)} | "
+                     f"{100 * fitted.mean():.1f} % |" if refined else f"| {fluid} | {len(entries)} | 0 | "
+                     f"{stats([])} | {stats([])} | - |")
+    notes = sorted({x["note"] for entries in groups.values() for x in entries if x["value"] is None})
+    if notes:
+        lines += ["", "Not refined: " + "; ".join(notes) + "."]
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=CASES, choices=CASES, metavar="RIG/FLUID",
@@ -247,7 +298,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1, help="cases side by side, one thread each")
     parser.add_argument("--recordings", type=Path, help="keep (and reuse) each case's recording and truth here")
     parser.add_argument("--sim", nargs="+", default=[], metavar="KEY=VALUE",
-                        help="SimConfig settings for both fit resolutions (numbers), e.g. compressibility=0.003")
+                        help="SimConfig settings for both fit resolutions, e.g. compressibility=0.003 or "
+                        "pressure=projection")
     parser.add_argument("--table", type=Path, help="print the tables of an existing JSON file and exit")
     parser.add_argument("--compare", choices=CASES, metavar="RIG/FLUID",
                         help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
@@ -255,9 +307,10 @@ def main() -> None:
     if args.compare:
         print(compare(args.compare))
         return
-    sim_settings = {k: float(v) for k, _, v in (item.partition("=") for item in args.sim)}
+    sim_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.sim)}
     if args.table:
-        print(table(json.loads(args.table.read_text())["rows"]))
+        rows = json.loads(args.table.read_text())["rows"]
+        print(table(rows) + "\n\n" + rectifier_table(rows))
         return
     data = json.loads(args.out.read_text()) if args.out and args.out.exists() else {
         "description": __doc__.splitlines()[0], "command": "python scripts/truth3d_benchmark.py "
@@ -266,13 +319,13 @@ def main() -> None:
     done = {r["case"] for r in data["rows"]}
     todo = [(CASES.index(c), c) for c in args.cases if c not in done]
     print(f"{len(todo)} cases to run ({len(done)} done)", flush=True)
-    with ProcessPoolExecutor(max_workers=max(1, args.jobs), mp_context=get_context("spawn")) as pool:
-        futures = {pool.submit(run_case, i, c, args.recordings, sim_settings): c for i, c in todo}
-        for future in as_completed(futures):
-            try:
-                row = future.result()
-            except Exception as error:  # a failed case is reported and the others go on
-                print(f"{futures[future]}: failed: {type(error).__name__}: {error}", flush=True)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # end the workers too (the pool's terminate below)
+    pool = get_context("spawn").Pool(max(1, args.jobs), maxtasksperchild=1)
+    try:
+        for case, row, error in pool.imap_unordered(_attempt, [(i, c, args.recordings, sim_settings)
+                                                                for i, c in todo]):
+            if row is None:
+                print(f"{case}: failed: {error}", flush=True)
                 continue
             data["rows"].append(row)
             data["finished"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
@@ -284,7 +337,10 @@ def main() -> None:
             c = row["corrected"]
             print(f"{row['case']}: η {c['eta']:.4g} against {c['eta_true']:.4g} ({100 * c['error']:+.1f} %), "
                   f"slice-only {100 * row['slice_only']['error']:+.1f} %", flush=True)
-    print(table(data["rows"]))
+    finally:
+        pool.terminate()
+        pool.join()
+    print(table(data["rows"]) + "\n\n" + rectifier_table(data["rows"]))
 
 
 if __name__ == "__main__":

@@ -521,7 +521,12 @@ def test_report_files(newtonian_identification):
     selected = result.fits[report["selected"]].model.material
     assert correction["factor"] == pytest.approx(result.problem.slice_correction(selected).factor)
     assert correction["flow_index"] == pytest.approx(1.0, abs=1e-5)
-    assert f"C = {correction['factor']:.4g}" in paths["md"].read_text()
+    assert f"C = {correction['factor']:.4g}" in paths["md"].read_text() and report["force_scale"] == "F' h C"
+    # the paper's extruded slice, fit.slice_correction=false: said in the report, no correction given
+    from diffstir.identify.report import markdown
+
+    plain = {**report, "slice_correction": None, "force_scale": "F' h (fit.slice_correction=false)"}
+    assert "F = F' h (fit.slice_correction=false)" in markdown(plain)
 
 
 def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_identification):

@@ -115,6 +115,8 @@ class Identification:
             "dead_start": self.problem.windows.dead_start.summary(),
             "shear_rate_range": list(self.probed_shear_rates()),
             "slice_correction": laws[self.selection["selected"]]["slice_correction"],
+            "force_scale": ("3-D force" if self.problem.config.dim != 2 else
+                            "F' h C" if self.problem.corrected else "F' h (fit.slice_correction=false)"),
             "simulation": {**self.problem.config.numerics(), "force_error": self.model_error},
             "seconds": self.seconds,
         }

@@ -57,6 +57,9 @@ def markdown(summary: dict) -> str:
         lines.append(f"- 2-D slice read as the cup's rod: F = F' h C, C = {correction['factor']:.4g} "
                      f"± {100 * correction['sigma']:.2g} % (1σ) at flow index {correction['flow_index']:.3g}, "
                      f"Re {correction['reynolds']:.3g}; the rig lies {where} the 3-D study's ranges")
+    elif summary.get("force_scale", "").startswith("F' h ("):
+        lines.append("- 2-D slice read as F = F' h (fit.slice_correction=false): the paper's extruded slice, without "
+                     "the cup's tip, bottom and free surface")
     dead = summary["dead_start"]
     if dead["detected"]:
         lines.append(f"- the sensor reads one value until {dead['until_s']:.3g} s while the rod moves (a dead start): "

@@ -9,8 +9,8 @@ the project's format and the truth to ``<recording>.truth.json`` beside it. ``sy
 together (``Blend``; docs/mixing.md). See docs/virtual-lab.md.
 """
 
-from diffstir.lab.fe_truth import FiniteElementTruth
 from diffstir.lab.blend import Blend, BlendMaterial, simulate_blend, synthesise_blend
+from diffstir.lab.fe_truth import FiniteElementTruth
 from diffstir.lab.fluid import Fluid, make_fluid_law
 from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from diffstir.lab.programme import Segment, programme_speed, stirring_programme

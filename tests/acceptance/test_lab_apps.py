@@ -30,17 +30,3 @@ def test_synth_writes_the_bundled_example_and_refuses_to_overwrite_it_before_sim
     assert "overwrite=true" in refused(again)
     assert (tmp_path / "lab" / "carreau_example" / "stir.csv").read_bytes() == before
 
-
-def test_synth_writes_a_3d_truth_recording_by_finite_elements(tmp_path):
-    """``lab/sim=fe3d`` on its defaults (conf/lab/sim/fe3d.yaml), the example's fluid and rig, over a shorter
-    programme (the data, not the configuration): a recording of the rod's 3-D force [N] and its truth file naming
-    the finite elements."""
-    ok(run("diffstir-synth", "lab/sim=fe3d", "lab.programme.segments=[{speed:0.2,duration:0.7}]", "name=fe3d",
-           "out=lab", cwd=tmp_path, timeout=900))
-    truth = json.loads((tmp_path / "lab" / "fe3d.truth.json").read_text())
-    simulator = truth["simulator"]
-    assert simulator["kind"] == "fe3d" and simulator["force_scale"] == "3-D force"
-    assert simulator["config"] == {"cell": 0.005, "growth": 3.0, "dt": 0.002}
-    assert simulator["factorisations"] >= 1 and simulator["velocity_dofs"] > 10_000
-    rec = load_recording(tmp_path / "lab" / "fe3d")
-    assert rec.t[-1] - rec.t[0] == pytest.approx(0.7, abs=0.011)  # the programme, its ramp included
