@@ -77,6 +77,14 @@ def rig_of(name: str):
                rod=Rod(radius=rod_radius, immersion_depth=immersion, length=0.25))
 
 
+def fe_config():
+    """The 3-D truth's default discretisation, ``conf/lab/sim/fe3d.yaml``."""
+    from diffstir.lab import FiniteElementTruth
+
+    settings = yaml.safe_load((CONF / "lab/sim/fe3d.yaml").read_text())
+    return FiniteElementTruth(**{k: v for k, v in settings.items() if k != "_target_"})
+
+
 def run_case(index: int, case: str, recordings: Path | None = None, sim_settings: dict | None = None) -> dict:
     """One case: the 3-D truth recording (kept in and reused from ``recordings``), then the fit with and without
     the slice correction, both resolutions with ``sim_settings``."""
@@ -87,7 +95,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     from omegaconf import OmegaConf
 
     from diffstir.identify import identify
-    from diffstir.lab import (FiniteElementTruth, Fluid, SensorModel, stirring_programme, synthesise, truth_path,
+    from diffstir.lab import (Fluid, SensorModel, stirring_programme, synthesise, truth_path,
                               write_lab_recording)
     from diffstir.recording import load_recording
     from diffstir.rectifier.apply import load_rectifier, refine
@@ -98,8 +106,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     rig = rig_of(rig_name)
     fluid = Fluid(name=fluid_name, density=density, law=law)
     trajectory = stirring_programme(programme, radius=RIGS[rig_name][-1], ramp_time=RAMP)
-    truth_config = FiniteElementTruth(**{k: v for k, v in yaml.safe_load((CONF / "lab/sim/fe3d.yaml").read_text())
-                                         .items() if k != "_target_"})
+    truth_config = fe_config()
     sensor = SensorModel(**yaml.safe_load((CONF / "lab/sensor/paper.yaml").read_text()))
     started = time.perf_counter()
     kept = recordings / case.replace("/", "_") if recordings else None
@@ -158,7 +165,7 @@ def compare(case: str, windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), 
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
-    from diffstir.lab import FiniteElementTruth, Fluid, stirring_programme, stokes3d
+    from diffstir.lab import Fluid, stirring_programme, stokes3d
     from diffstir.lab.fe_truth import circle_motion
     from diffstir.mpm import StirringSimulator
 
@@ -168,8 +175,7 @@ def compare(case: str, windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), 
     rig, orbit = rig_of(rig_name), RIGS[rig_name][-1]
     fluid = Fluid(name=fluid_name, density=density, law=law)
     trajectory = stirring_programme(programme, radius=orbit, ramp_time=RAMP)
-    config = FiniteElementTruth(**{k: v for k, v in yaml.safe_load((CONF / "lab/sim/fe3d.yaml").read_text())
-                                   .items() if k != "_target_"})
+    config = fe_config()
     times = np.arange(0.0, trajectory.t[-1] + config.dt / 2, config.dt)
     _, angle, rate, acceleration = circle_motion(trajectory, times)
     cup = stokes3d.CupRig.of(rig, orbit)

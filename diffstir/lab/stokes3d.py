@@ -272,6 +272,7 @@ class _Spaces:
     fixed: np.ndarray  # fixed_u and one pinned pressure dof, in the unknowns (u, p)
     free: np.ndarray
     divergence: sp.spmatrix  # ∫ div(u) q
+    surface: np.ndarray  # the pressure dofs on the free surface
 
     @classmethod
     def of(cls, rig_mesh: RigMesh) -> "_Spaces":
@@ -290,7 +291,8 @@ class _Spaces:
         fixed = np.concatenate([fixed_u, [pin]])
         free = np.setdiff1d(np.arange(n_u + n_p), fixed)
         divergence = asm(BilinearForm(lambda u, q, w: div(u) * q), velocity, pressure)
-        return cls(velocity, pressure, rod_dofs, fixed_u, slip, fixed, free, divergence)
+        surface = pressure.get_dofs(mesh.boundaries["surface"]).all()
+        return cls(velocity, pressure, rod_dofs, fixed_u, slip, fixed, free, divergence, surface)
 
     @property
     def n_u(self) -> int:
@@ -316,10 +318,9 @@ class _Spaces:
         d = sym_grad(self.velocity.interpolate(u))
         return np.sqrt(2.0 * ddot(d, d))
 
-    def surface_pressure_to_zero(self, mesh: MeshTet, solution: np.ndarray) -> None:
+    def surface_pressure_to_zero(self, solution: np.ndarray) -> None:
         """Shift the pressure in ``solution`` so that its mean over the free surface's dofs is zero."""
-        top = self.pressure.get_dofs(mesh.boundaries["surface"]).all()
-        solution[self.n_u:] -= solution[self.n_u + top].mean()
+        solution[self.n_u:] -= solution[self.n_u + self.surface].mean()
 
 
 @BilinearForm
@@ -432,7 +433,7 @@ def solve(rig_mesh: RigMesh, law=1.0, speed: float = 0.1, *, motion: str = "stir
         raise RuntimeError(f"the fixed point did not converge in {max_iterations} iterations (last relative change "
                            f"{change:.1e} > tol {tol:g}); try relaxation < 1 or more iterations")
     # the pressure's mean on the free surface is the zero of pressure (the lid's normal stress)
-    spaces.surface_pressure_to_zero(mesh, solution)
+    spaces.surface_pressure_to_zero(solution)
     residual = matrix @ solution - rhs  # the rod's force on the fluid at its dofs
     force = -np.array([residual[d].sum() for d in rod_dofs])
     torque = -float(((x[0, ry] - e) * residual[ry]).sum() - (x[1, rx] * residual[rx]).sum())
@@ -550,7 +551,7 @@ def stir_history(rig_mesh: RigMesh, law, times: np.ndarray, angle: np.ndarray, r
         wall = spaces.wall(omega, (0.0, omega * e), 0.0, e)
         solution[fixed] = np.concatenate([wall[fixed_u], [0.0]])
         solution[free] = factor.solve(rhs[free] - coupling @ solution[fixed])
-        spaces.surface_pressure_to_zero(mesh, solution)
+        spaces.surface_pressure_to_zero(solution)
         frame_force[step] = [-float((row @ solution - rhs[d]).sum()) for row, d in zip(rod_rows, spaces.rod_dofs)]
         u_prev, u_now = u_now, solution[:n_u].copy()
         n_prev, n_now = n_now, asm(convection, velocity, u=velocity.interpolate(u_now), rate=omega)
