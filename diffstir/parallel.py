@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import multiprocessing
 import os
+import pickle
 import queue
 import signal
 import sys
@@ -114,7 +115,7 @@ class Workers:
                 continue
             while self.waiting and len(self.running) < self.slots:  # no more than can run: a later one may go first
                 job = self.waiting.pop(0)
-                self.running[self.pool.submit(_run_in_worker, job)] = job
+                self.running[self.pool.submit(_run_in_worker, pickle.dumps(job))] = job
             self._forward_events(timeout=0.2)
             for future, job in list(self.running.items()):
                 if not future.done():
@@ -126,7 +127,7 @@ class Workers:
                 if (job.stage, job.key) in self.finished:  # every event of the job has been handed on
                     self.finished.remove((job.stage, job.key))
                     del self.running[future]
-                    yield job, future.result()
+                    yield job, pickle.loads(future.result())
 
     def _forward_events(self, timeout: float) -> None:
         """Hand on the events queued so far, waiting up to ``timeout`` [s] for the first. A job's last event,
@@ -170,7 +171,11 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def _run_in_worker(job: Job) -> object:
+def _run_in_worker(pickled_job: bytes) -> bytes:
+    """Runs a job pickled by value and returns its result pickled by value: plain pickle copies tensors into the
+    message, where multiprocessing's pickler would share their memory through a file descriptor that a process
+    ended by a signal mid-transfer leaves its peer waiting for."""
+    job = pickle.loads(pickled_job)
     result = job.run(_EVENTS.put)
     _EVENTS.put(("finished", job.stage, job.key))
-    return result
+    return pickle.dumps(result)

@@ -20,8 +20,8 @@ three speeds.
     python scripts/truth3d_benchmark.py --compare project/newtonian_0.1           # where the forces differ
 ``--compare RIG/FLUID`` locates a mismatch: the rod's force over the case's stir in the frame turning with it
 (drag against the motion, radial outwards; means over windows) from the 3-D finite elements, the same elements'
-2-D slab times the immersion, and the fitting simulator's default 2-D slice times the immersion, all at the truth's
-law, before any sensor or fit.
+2-D slab times the immersion, and the fitting simulator's 2-D slice (sim=slice2d with ``--sim``) times the
+immersion, all at the truth's law, before any sensor or fit.
 
 ``--recordings DIR`` keeps each case's recording and truth there (``DIR/<rig>_<fluid>``) and reuses them when
 present, so other fit settings (``--sim KEY=VALUE``, applied to both resolutions) run without the truth's cost.
@@ -158,8 +158,12 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     return row
 
 
-def compare(case: str, windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0))) -> str:
-    """The markdown table of ``--compare``: mean drag and radial force [N] over ``windows`` [s]."""
+def compare(case: str, sim_settings: dict | None = None,
+            windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0))) -> str:
+    """The markdown table of ``--compare``: mean drag and radial force [N] over ``windows`` [s], the fitting
+    simulator (sim=slice2d) with ``sim_settings``."""
+    from dataclasses import replace
+
     import numpy as np
     import torch
     from hydra.utils import instantiate
@@ -187,15 +191,16 @@ def compare(case: str, windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), 
         scale = cup.immersion if mesh.thickness else 1.0
         along = np.where(rate < 0, -1.0, 1.0)  # the frame's y is +θ, the motion's direction for Ω > 0
         forces[label] = (times, -along * history.frame_force[:, 1] * scale, history.frame_force[:, 0] * scale)
-    simulator = StirringSimulator(fluid.make_law(), rig, instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml")),
-                                  density=density)
+    fine = replace(instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml")), **(sim_settings or {}))
+    simulator = StirringSimulator(fluid.make_law(), rig, fine, density=density)
     with torch.no_grad():
         result = simulator(trajectory)
     t = result.times.numpy()
     force = result.force.double().numpy()[:, :2] * rig.rod.immersion_depth
     theta = np.interp(t, times, angle)
     along = np.where(np.interp(t, times, rate) < 0, -1.0, 1.0)
-    forces["MPM sim=slice2d × h"] = (t, -along * (-np.sin(theta) * force[:, 0] + np.cos(theta) * force[:, 1]),
+    label = "MPM sim=slice2d" + "".join(f", {k}={v}" for k, v in (sim_settings or {}).items()) + " × h"
+    forces[label] = (t, -along * (-np.sin(theta) * force[:, 0] + np.cos(theta) * force[:, 1]),
                                      np.cos(theta) * force[:, 0] + np.sin(theta) * force[:, 1])
     lines = ["| force [N] | " + " | ".join(f"({a:g}, {b:g}] s" for a, b in windows) + " |",
              "|---|" + "---|" * len(windows)]
@@ -310,10 +315,10 @@ def main() -> None:
     parser.add_argument("--compare", choices=CASES, metavar="RIG/FLUID",
                         help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
     args = parser.parse_args()
-    if args.compare:
-        print(compare(args.compare))
-        return
     sim_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.sim)}
+    if args.compare:
+        print(compare(args.compare, sim_settings))
+        return
     if args.table:
         rows = json.loads(args.table.read_text())["rows"]
         print(table(rows) + "\n\n" + rectifier_table(rows))

@@ -4,16 +4,13 @@ recording."""
 
 import json
 import math
-from pathlib import Path
 from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
-import yaml
 
-from diffstir.apps import CONF_DIR
 from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
 from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
 from diffstir.diagnose.candidates import (PHYSICS_CANDIDATES, SENSOR_CANDIDATES, SLIP_STARTS, CachedReplay, Context,
@@ -25,7 +22,7 @@ from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, readin
 from diffstir.identify import StirProblem, Windows
 from diffstir.lab import first_order_lag, stirring_programme
 from diffstir.mpm import SimConfig
-from diffstir.recording import CupGeometry, DensityMeasurement, Recording, RodGeometry, SensorSpec, sensor_reading_np
+from diffstir.recording import CupGeometry, Recording, RodGeometry, SensorSpec, sensor_reading_np
 from diffstir.rheology import Newtonian, make_law
 from problems import fitted_force
 
@@ -401,33 +398,3 @@ def test_candidates_fitted_in_parallel_processes_equal_those_fitted_in_one(tmp_p
         np.testing.assert_array_equal(two.fits[name].predicted, fit.predicted)
     timeless = [[{k: v for k, v in entry.items() if k != "seconds"} for entry in d.ranking] for d in (one, two)]
     assert two.verdict == one.verdict and timeless[1] == timeless[0]
-
-
-def test_the_diagnosis_runs_on_its_default_configuration(tmp_path, monkeypatch):
-    """``diffstir-diagnose recording=DIR out=DIR`` as a user runs it: the Newtonian fit and every candidate on the
-    default simulation (``sim: coarse2d``, whose sound speed follows the stir), on a stir of one short period."""
-    import sys
-
-    from diffstir.apps.diagnose import main
-    from diffstir.recording import save_recording
-    from diffstir.trajectory import circle
-
-    # one period of 0.47 s at 0.08 m/s on a 6 mm circle: the shortest recording loading accepts (0.5 s)
-    traj = circle(radius=0.006, speed=0.08, duration=0.5, ramp_time=0.05, sample_rate=RATE)
-    blank = rig_recording(traj, name="short")
-    t, f = fitted_force(Newtonian(eta=0.8), blank, FAST)  # the path the fitter replays, F = F' h C
-    force = np.stack([np.interp(traj.t, t, f[:, k]) for k in range(2)], axis=-1)
-    reading = sensor_reading_np(force, blank.velocity(), blank.sensor)
-    reading += np.random.default_rng(0).normal(0.0, NOISE, reading.shape)
-    buoyancy = 1000.0 * math.pi * 0.0125**2 * 0.08 * 9.81  # N: the rod 8 cm deep in 1000 kg/m³
-    density = DensityMeasurement(rod_weight=0.675, immersed_reading=0.675 - buoyancy, immersed_depth=0.08)
-    path = save_recording(replace(rig_recording(traj, reading, name="short"), density=density), tmp_path / "rec")
-    out = tmp_path / "out"
-    monkeypatch.setattr(sys, "argv", ["diffstir-diagnose", f"recording={path}", f"out={out}"])
-    main()
-    diagnosis = json.loads((out / "diagnosis.json").read_text())
-    assert {r["effect"] for r in diagnosis["ranking"]} == set(check_names(
-        yaml.safe_load((Path(CONF_DIR) / "diagnose.yaml").read_text())["candidates"]))
-    physics = [r for r in diagnosis["ranking"] if r["effect"] in PHYSICS_CANDIDATES and r.get("score") is not None]
-    assert physics and all(r["simulations"] > 0 for r in physics)
-    assert diagnosis["simulation"]["dx"] == 0.005  # coarse2d, as configured

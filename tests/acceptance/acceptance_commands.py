@@ -27,6 +27,11 @@ full_only = pytest.mark.skipif(not FULL, reason="a default run longer than CI's 
                                                 "runs it (docs/acceptance.md)")
 
 
+#: the thread counts of torch (OpenMP) and the BLAS libraries. Under pytest-xdist each test process has one core,
+#: and a command's two spinning OpenMP threads beside the other process run several times slower than one
+#: (tests/conftest.py); the command's own worker processes follow its thread count (diffstir.parallel).
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
 #: where ``run`` appends one line per command (scripts/acceptance.sh sets it; unset: no log)
 TIMING_LOG = os.environ.get("DIFFSTIR_ACCEPTANCE_LOG")
 
@@ -36,6 +41,8 @@ def run(*command: str, cwd: Path, timeout: float) -> subprocess.CompletedProcess
     With ``TIMING_LOG`` set, one tab-separated line is appended there: the UTC start, the wall time [s], the exit
     status, the command and its output's last line (a fit's or an experiment's summary)."""
     env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # the suite's other process holds another core: one thread each
+        env.update({name: "1" for name in THREAD_VARIABLES})
     started, clock = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), time.perf_counter()
     try:
         result = subprocess.run(list(command), cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)

@@ -1,13 +1,17 @@
-"""diffstir-fit (one recording, experiment=behaviour, experiment=mixing) and diffstir-diagnose on their default
-configurations, on the bundled rig recordings (docs/acceptance.md)."""
+"""diffstir-fit (one recording, experiment=behaviour) and diffstir-diagnose on their default configurations, on the
+bundled rig recordings (docs/acceptance.md)."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
+import yaml
 from acceptance_commands import example, full_only, ok, run, truth
 
+from diffstir.apps import CONF_DIR
+from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, check_names
 from diffstir.lab import Fluid
 
 pytestmark = pytest.mark.acceptance
@@ -51,21 +55,14 @@ def test_behaviour_classifies_three_constant_speed_stirs_at_200_hz(tmp_path):
     assert report["behaviour"]["class"] == "shear_thinning"
 
 
-def test_mixing_tracks_the_blend_between_its_components(tmp_path):
-    blend = truth("rig_blend")["fluid"]["blend"]
-    eta = [blend["first"]["law"]["params"]["eta"], blend["second"]["law"]["params"]["eta"]]
-    ok(run("diffstir-fit", "experiment=mixing", f"recordings=[{example('rig_blend')}]",
-           f"mixing.viscosities=[{eta[0]},{eta[1]}]", f"mixing.fraction={blend['fraction']}", "out=mixing",
-           cwd=tmp_path, timeout=1800))
-    report = json.loads((tmp_path / "mixing" / "report.json").read_text())
-    course = report["mixing"]["time_course"]
-    assert len(course) >= 4  # 2.4 s, the ramp's 0.1 s off, in the default 0.5 s windows
-    assert (tmp_path / "mixing" / "time_course.png").is_file()
-
-
 def test_diagnose_runs_its_default_candidates(tmp_path):
     ok(run("diffstir-diagnose", f"recording={example('rig_jitter_1khz')}", "out=diagnosis", cwd=tmp_path,
            timeout=3600))
     diagnosis = json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())
     assert diagnosis["verdict"]
+    configured = yaml.safe_load((Path(CONF_DIR) / "diagnose.yaml").read_text())["candidates"]
+    assert {r["effect"] for r in diagnosis["ranking"]} == set(check_names(configured))
+    physics = [r for r in diagnosis["ranking"] if r["effect"] in PHYSICS_CANDIDATES and r.get("score") is not None]
+    assert physics and all(r["simulations"] > 0 for r in physics)
+    assert diagnosis["simulation"]["dx"] == 0.005  # sim: coarse2d, as configured
     assert (tmp_path / "diagnosis" / "diagnosis.md").is_file()
