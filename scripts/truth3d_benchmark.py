@@ -297,7 +297,8 @@ def rectifier_table(rows: list[dict]) -> str:
                      f"{stats([])} | {stats([])} | - |")
     notes = sorted({x["note"] for entries in groups.values() for x in entries if x["value"] is None})
     if notes:
-        lines += ["", "Not refined: " + "; ".join(notes) + "."]
+        text = "; ".join(notes)
+        lines += ["", text[0].upper() + text[1:] + "."]
     return "\n".join(lines)
 
 

@@ -140,6 +140,14 @@ class TruthSimulation:
     per_unit_length: bool
     slice_factor: float = 1.0  # C applied to a 2-D truth's force (``diffstir.slice_correction``) [1]
 
+    @classmethod
+    def silent(cls, fluid: Fluid, trajectory: Trajectory, rig: Rig, times: np.ndarray,
+               sim_config: SimConfig | None = None, physics: HiddenPhysicsSpec | None = None) -> "TruthSimulation":
+        """A truth of zero force at ``times`` [s], simulated by nothing: what a sensor makes of ``trajectory``
+        alone (its samples, their validation) before any simulation is spent on it."""
+        return cls(fluid, trajectory, rig, sim_config or SimConfig(dim=2), physics or HiddenPhysicsSpec(), times,
+                   np.zeros((times.size, 2)), float(times[1] - times[0]), {}, False)
+
 
 def simulate_truth(fluid: Fluid, trajectory: Trajectory, *, rig: Rig | None = None,
                    sim_config: SimConfig | None = None, physics: HiddenPhysicsSpec | None = None, seed: int = 0,
@@ -227,11 +235,8 @@ def check_programme(fluid: Fluid, trajectory: Trajectory, rig: Rig | None = None
                     sensor: SensorModel | None = None) -> None:
     """Raise ConfigError, before any simulation, when the recording ``sensor`` would make of ``trajectory`` is
     invalid (too short for one stirring period, too sparse): the recording of a silent truth, validated."""
-    rig, times = rig or Rig(), trajectory.t
-    silent = TruthSimulation(fluid, trajectory, rig, SimConfig(dim=2), HiddenPhysicsSpec(), times,
-                             np.zeros((times.size, 2)), float(times[1] - times[0]), {}, False)
     try:
-        read_truth(silent, sensor, name="programme")
+        read_truth(TruthSimulation.silent(fluid, trajectory, rig or Rig(), trajectory.t), sensor, name="programme")
     except RecordingError as error:
         problem = re.sub(r"^<unsaved recording 'programme'> \S+: ", "", str(error))
         raise ConfigError(f"lab/programme, lab/sensor: the recording they make would be invalid: {problem}") from None

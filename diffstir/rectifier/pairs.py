@@ -282,8 +282,8 @@ def _group(design, shard, path, trajectory, density, physics, estimator_config, 
     # the group's sampling from a silent recording of the same path (no simulation): mid-step force times of any
     # step shorter than the sampling interval give the same sample times
     times = np.linspace(1e-6, design.duration - 1e-6, int(design.duration * 1e4) + 1)
-    silent = TruthSimulation(Fluid("silent", density, {"name": "newtonian", "params": {"eta": 1.0}}), trajectory,
-                             Rig(), estimator_config, physics, times, np.zeros((times.size, 2)), 1e-4, {}, True)
+    silent = TruthSimulation.silent(Fluid("silent", density, {"name": "newtonian", "params": {"eta": 1.0}}),
+                                    trajectory, Rig(), times, estimator_config, physics)
     template = read_truth(silent, SensorModel(**_fixed(design.sensor))).recording
     problem = _problem(template, estimator_config, density, design)
     if same_group:  # measured before γ̇_eff's definition changed: keep the ladder
