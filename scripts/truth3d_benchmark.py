@@ -85,14 +85,20 @@ def fe_config():
     return FiniteElementTruth(**{k: v for k, v in settings.items() if k != "_target_"})
 
 
+def sim_config(name: str, sim_settings: dict | None = None):
+    """The fitting simulator's preset ``conf/sim/<name>.yaml`` with ``sim_settings`` (``--sim``) applied."""
+    from dataclasses import replace
+
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    return replace(instantiate(OmegaConf.load(CONF / f"sim/{name}.yaml")), **(sim_settings or {}))
+
+
 def run_case(index: int, case: str, recordings: Path | None = None, sim_settings: dict | None = None) -> dict:
     """One case: the 3-D truth recording (kept in and reused from ``recordings``), then the fit with and without
     the slice correction, both resolutions with ``sim_settings``."""
-    from dataclasses import replace
-
     import torch
-    from hydra.utils import instantiate
-    from omegaconf import OmegaConf
 
     from diffstir.identify import identify
     from diffstir.lab import (Fluid, SensorModel, stirring_programme, synthesise, truth_path,
@@ -119,8 +125,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
             write_lab_recording(lab, kept)
     truth_seconds = time.perf_counter() - started
     fit_cfg = yaml.safe_load((CONF / "fit.yaml").read_text())["fit"]
-    fine = replace(instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml")), **(sim_settings or {}))
-    coarse = replace(instantiate(OmegaConf.load(CONF / "sim/coarse2d.yaml")), **(sim_settings or {}))
+    fine, coarse = sim_config("slice2d", sim_settings), sim_config("coarse2d", sim_settings)
     true_law = fluid.make_law().double()
     row = {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
            "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
@@ -162,12 +167,8 @@ def compare(case: str, sim_settings: dict | None = None,
             windows=((0.0, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0))) -> str:
     """The markdown table of ``--compare``: mean drag and radial force [N] over ``windows`` [s], the fitting
     simulator (sim=slice2d) with ``sim_settings``."""
-    from dataclasses import replace
-
     import numpy as np
     import torch
-    from hydra.utils import instantiate
-    from omegaconf import OmegaConf
 
     from diffstir.lab import Fluid, stirring_programme, stokes3d
     from diffstir.lab.fe_truth import circle_motion
@@ -191,8 +192,7 @@ def compare(case: str, sim_settings: dict | None = None,
         scale = cup.immersion if mesh.thickness else 1.0
         along = np.where(rate < 0, -1.0, 1.0)  # the frame's y is +θ, the motion's direction for Ω > 0
         forces[label] = (times, -along * history.frame_force[:, 1] * scale, history.frame_force[:, 0] * scale)
-    fine = replace(instantiate(OmegaConf.load(CONF / "sim/slice2d.yaml")), **(sim_settings or {}))
-    simulator = StirringSimulator(fluid.make_law(), rig, fine, density=density)
+    simulator = StirringSimulator(fluid.make_law(), rig, sim_config("slice2d", sim_settings), density=density)
     with torch.no_grad():
         result = simulator(trajectory)
     t = result.times.numpy()
@@ -201,7 +201,7 @@ def compare(case: str, sim_settings: dict | None = None,
     along = np.where(np.interp(t, times, rate) < 0, -1.0, 1.0)
     label = "MPM sim=slice2d" + "".join(f", {k}={v}" for k, v in (sim_settings or {}).items()) + " × h"
     forces[label] = (t, -along * (-np.sin(theta) * force[:, 0] + np.cos(theta) * force[:, 1]),
-                                     np.cos(theta) * force[:, 0] + np.sin(theta) * force[:, 1])
+                     np.cos(theta) * force[:, 0] + np.sin(theta) * force[:, 1])
     lines = ["| force [N] | " + " | ".join(f"({a:g}, {b:g}] s" for a, b in windows) + " |",
              "|---|" + "---|" * len(windows)]
     for part, index in (("drag", 1), ("radial", 2)):
