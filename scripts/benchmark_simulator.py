@@ -21,7 +21,8 @@ absolute ms move with the other jobs, the ratios much less. Variants:
 - ``walls``: ``SimConfig.wall_pressure = True``, boundary particles in the solids carrying the fluid's pressure.
 - ``cpu``: the eager step on the CPU, the reference a GPU's variants are compared with (``--device cuda``).
 - ``reference``: another checkout's simulator (``--reference-tree DIR``, a directory holding a ``diffstir``
-  package, e.g. ``git worktree add /tmp/diffstir-ref <commit>``), imported side by side under another name.
+  package, e.g. ``git worktree add /tmp/diffstir-ref <commit>``), imported side by side under another name;
+  ``reference-projection``: that checkout's ``projection`` variant.
 
 Times are the fastest of ``--repeats`` warm runs (a rollout of ``--steps`` steps; forward without gradients, and
 forward plus the backward pass of mean |F| through the checkpointed rollout). Memory: the bytes of tensors that
@@ -61,13 +62,16 @@ from pathlib import Path
 import torch
 import torch._inductor.config
 
-SCENES = {  # slice2d and fine3d with the default numerics (FLIP share, packing relaxation), paper3d with the paper's
+SCENES = {  # slice2d, coarse2d and fine3d with the default numerics (FLIP share, packing relaxation; the pressure
+    # as configured by the variant), paper3d with the paper's
     "paper3d": dict(dim=3, dx=0.01, sound_speed=4.5, cfl=0.45, dt=1e-3, settle_time=0.3, flip=0.0,
                     volume_relaxation=0.0),
     "fine3d": dict(dim=3, dx=0.005, sound_speed=10.0, settle_time=0.3),
     "slice2d": dict(dim=2, dx=0.0025, sound_speed=1.0),
+    "coarse2d": dict(dim=2, dx=0.005, sound_speed=1.0, dt_max=0.002),
 }
-VARIANTS = ["eager", "unfused", "compiled", "compiled-unfused", "projection", "walls", "cpu", "reference"]
+VARIANTS = ["eager", "unfused", "compiled", "compiled-unfused", "projection", "walls", "cpu", "reference",
+            "reference-projection"]
 HORIZON = 8000  # steps: the paper's 8 s recording at 1 ms
 
 
@@ -86,7 +90,7 @@ def import_reference(tree: Path):
 
 def build(variant: str, scene: str, reference, device: str = "cpu") -> tuple:
     """The simulator and trajectory function of one variant, on ``device`` (the ``cpu`` variant on the CPU)."""
-    modules = reference if variant == "reference" else {
+    modules = reference if variant.startswith("reference") else {
         "mpm": importlib.import_module("diffstir.mpm"), "rheology": importlib.import_module("diffstir.rheology"),
         "rig": importlib.import_module("diffstir.rig"), "trajectory": importlib.import_module("diffstir.trajectory")}
     known = {f.name for f in dataclasses.fields(modules["mpm"].SimConfig)}  # an older checkout lacks newer settings
@@ -95,7 +99,7 @@ def build(variant: str, scene: str, reference, device: str = "cpu") -> tuple:
         settings["compile"] = True
     if variant == "compiled-unfused":
         settings["kernels"] = "torch"
-    if variant == "projection":
+    if variant in ("projection", "reference-projection"):
         settings["pressure"] = "projection"
     if variant == "walls":
         settings["wall_pressure"] = True
@@ -201,8 +205,8 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true", help="print where a forward rollout spends its time")
     parser.add_argument("--device", default="cpu", help="torch device of every variant but 'cpu', e.g. cuda")
     args = parser.parse_args()
-    if "reference" in args.variants and args.reference_tree is None:
-        parser.error("the 'reference' variant needs --reference-tree DIR")
+    if any(v.startswith("reference") for v in args.variants) and args.reference_tree is None:
+        parser.error("the 'reference' variants need --reference-tree DIR")
     reference = import_reference(args.reference_tree) if args.reference_tree else None
     torch.set_num_threads(args.threads)
     if args.profile:

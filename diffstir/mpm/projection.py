@@ -35,13 +35,14 @@ iterations.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 
 import numpy as np
+import qdldl
 import torch
 import torch.autograd.forward_ad as fwAD
 from scipy import sparse
-from scipy.sparse.linalg import splu
 from torch import Tensor
 
 from .boundaries import GhostOperator
@@ -50,6 +51,7 @@ from .viscous import CellStencil, cell_velocity_gradient, nodal_forces
 STABILISATION = 0.1  # β: the checkerboard's weight in the stabilised operator, over A's diagonal (module docstring)
 TOLERANCE = 1e-10  # relative residual at which conjugate gradients stop (devices other than the CPU)
 MAX_ITERATIONS = 2000
+RESTRICTIONS = 8  # pressure-cell sets whose restricted operators a scene keeps (CellMatrices.on)
 
 
 def divergence(v: Tensor, cells: CellStencil) -> Tensor:
@@ -80,11 +82,12 @@ def ghost_transpose(op: GhostOperator, u: Tensor) -> Tensor:
 @dataclass(frozen=True)
 class CellMatrices:
     """A grid's cell operators as sparse matrices, built once per scene (float64, for the CPU-side assembly): the
-    divergence D (cells, nodes·d) of ``divergence`` and the face incidence B (faces, cells), ±1 on each face's
-    two cells, so that G = Bᵀ B is ``Projection.face_laplacian`` over all cells."""
+    divergence D (cells, nodes·d) of ``divergence`` and the cells' face pairs, with ``on`` restricting both to a set
+    of pressure cells."""
 
     divergence: sparse.csr_matrix
-    incidence: sparse.csc_matrix
+    faces: np.ndarray
+    _restricted: OrderedDict = field(default_factory=OrderedDict, compare=False, repr=False)
 
     @classmethod
     def of(cls, cells: CellStencil, num_nodes: int) -> "CellMatrices":
@@ -94,12 +97,29 @@ class CellMatrices:
         rows = np.repeat(np.arange(n_cells), k * d)
         cols = (corners[:, :, None] * d + np.arange(d)).ravel()
         values = np.tile(_np(cells.grad).ravel(), n_cells)
-        first, second = _np(cells.faces).T
-        n_faces = len(first)
-        incidence = sparse.csc_matrix((np.r_[np.ones(n_faces), -np.ones(n_faces)],
-                                       (np.r_[np.arange(n_faces), np.arange(n_faces)], np.r_[first, second])),
-                                      shape=(n_faces, n_cells))
-        return cls(sparse.csr_matrix((values, (rows, cols)), shape=(n_cells, num_nodes * d)), incidence)
+        return cls(sparse.csr_matrix((values, (rows, cols)), shape=(n_cells, num_nodes * d)), _np(cells.faces))
+
+    def on(self, kept: np.ndarray) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
+        """D's rows of the pressure cells ``kept`` (indices, ascending) and G² among them, G p = Σ over faces shared
+        with another pressure cell of (p_c − p_c') (``Projection.face_laplacian``); the last ``RESTRICTIONS``
+        sets are kept, as the pressure cells change only every few steps."""
+        key = kept.tobytes()
+        if key in self._restricted:
+            self._restricted.move_to_end(key)
+            return self._restricted[key]
+        index = np.full(self.divergence.shape[0], -1)
+        index[kept] = np.arange(len(kept))
+        first, second = index[self.faces].T
+        both = (first >= 0) & (second >= 0)
+        first, second, n = first[both], second[both], len(kept)
+        degree = np.bincount(first, minlength=n) + np.bincount(second, minlength=n)
+        laplacian = sparse.csr_matrix((np.r_[degree, -np.ones(2 * len(first))],
+                                       (np.r_[np.arange(n), first, second], np.r_[np.arange(n), second, first])),
+                                      shape=(n, n))
+        self._restricted[key] = restricted = (self.divergence[kept], (laplacian @ laplacian).tocsr())
+        if len(self._restricted) > RESTRICTIONS:
+            self._restricted.popitem(last=False)
+        return restricted
 
 
 @dataclass
@@ -166,28 +186,28 @@ class Projection:
         d = self.cells.grad.shape[1]
         n_dof = self.num_nodes * d
         kept = np.flatnonzero(_np(self.pressure_cell) > 0)
-        ghost_rows, ghost_cols, ghost_values, targets = [], [], [], []
+        rows, cols, values = [], [], []
+        ghost = np.zeros(n_dof, dtype=bool)
         for op in (self.cup, self.rod):
-            active = slice(None) if op.active is None else _np(op.active).astype(bool)
-            target, source = _np(op.target)[active], _np(op.source)[active]
-            entries = _np(op.weight)[active][:, None, :, None] * _np(op.matrix)[active][:, :, None, :]  # (Q,a,K',b)
-            ghost_rows.append(np.broadcast_to((target[:, None] * d + np.arange(d))[:, :, None, None],
-                                              entries.shape).ravel())
-            ghost_cols.append(np.broadcast_to((source[:, :, None] * d + np.arange(d))[:, None, :, :],
-                                              entries.shape).ravel())
-            ghost_values.append(entries.ravel())
-            targets.append((target[:, None] * d + np.arange(d)).ravel())
-        identity = np.ones(n_dof)
-        identity[np.concatenate(targets)] = 0.0
-        extension = sparse.diags(identity, format="csr") + sparse.csr_matrix(
-            (np.concatenate(ghost_values), (np.concatenate(ghost_rows), np.concatenate(ghost_cols))),
-            shape=(n_dof, n_dof))
-        constraint = self.matrices.divergence[kept] @ extension
-        mobility = sparse.diags(np.repeat(_np(self.mobility[:, 0]), d))
-        incidence = self.matrices.incidence[:, kept].tocsr()
-        incidence = incidence[np.diff(incidence.indptr) == 2]  # the faces between two pressure cells
-        laplacian = incidence.T @ incidence
-        return (constraint @ mobility @ constraint.T + self.stabilisation * (laplacian @ laplacian)).tocsr()
+            target, source, weight, matrix = (_np(t) for t in (op.target, op.source, op.weight, op.matrix))
+            if op.active is not None:
+                active = _np(op.active).astype(bool)
+                target, source, weight, matrix = target[active], source[active], weight[active], matrix[active]
+            entries = weight[:, None, :, None] * matrix[:, :, None, :]  # (Q, a, K, b): W_qc G_q,ab
+            target_dof = target[:, None] * d + np.arange(d)
+            rows.append(np.broadcast_to(target_dof[:, :, None, None], entries.shape).ravel())
+            cols.append(np.broadcast_to((source[:, :, None] * d + np.arange(d))[:, None], entries.shape).ravel())
+            values.append(entries.ravel())
+            ghost[target_dof.ravel()] = True
+        fluid_dof = np.flatnonzero(~ghost)
+        extension = sparse.csr_matrix((np.concatenate([*values, np.ones(len(fluid_dof))]),
+                                       (np.concatenate([*rows, fluid_dof]), np.concatenate([*cols, fluid_dof]))),
+                                      shape=(n_dof, n_dof))
+        divergence, laplacian_squared = self.matrices.on(kept)
+        constraint = divergence @ extension
+        weighted = constraint.copy()
+        weighted.data *= np.repeat(_np(self.mobility[:, 0]), d)[weighted.indices]
+        return (weighted @ constraint.T + self.stabilisation * laplacian_squared).tocsr()
 
 
 def _np(t: Tensor) -> np.ndarray:
@@ -198,32 +218,44 @@ class PressureSolver:
     """x = A⁻¹ b for the step's assembled A (``Projection.matrix``, on the pressure cells ``pressure_cell``), zero
     on the other cells.
 
-    ``method`` ``"lu"``: a sparse LU factorisation (SuperLU, float64, on the CPU; about 2 ms for the 2-D default's
-    900 cells), which the backward pass's solve reuses. ``"cg"``: Jacobi-preconditioned conjugate gradients with
-    A as a sparse tensor on the pressure's device. None: LU on the CPU, CG elsewhere.
+    ``method`` ``"ldl"``: a sparse LDLᵀ factorisation (QDLDL after an approximate minimum degree ordering, float64,
+    on the CPU), which the backward pass's solve reuses. ``"cg"``: Jacobi-preconditioned conjugate gradients with A
+    as a sparse tensor on the pressure's device. None: LDLᵀ on the CPU, CG elsewhere.
     """
 
     def __init__(self, matrix: sparse.csr_matrix, pressure_cell: Tensor, method: str | None = None):
         self.keep = pressure_cell.detach().bool()
         self.device = pressure_cell.device
-        self.method = method or ("lu" if self.device.type == "cpu" else "cg")
-        if self.method == "lu":
-            self.lu = splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        self.method = method or ("ldl" if self.device.type == "cpu" else "cg")
+        if self.method == "ldl":
+            self.ldl = qdldl.Solver(upper_triangle(matrix), upper=True)
         elif self.method == "cg":
             coo = matrix.tocoo()
             self.sparse = torch.sparse_coo_tensor(np.stack([coo.row, coo.col]), coo.data, coo.shape,
                                                   device=self.device, check_invariants=False).coalesce()
             self.inverse_diagonal = torch.as_tensor(1.0 / coo.diagonal(), device=self.device)
         else:
-            raise ValueError(f"method = {method!r}; expected 'lu', 'cg' or None")
+            raise ValueError(f"method = {method!r}; expected 'ldl', 'cg' or None")
 
     def __call__(self, rhs: Tensor) -> Tensor:
         b = rhs.detach()[self.keep]
-        if self.method == "lu":
-            x = torch.from_numpy(self.lu.solve(b.double().cpu().numpy())).to(rhs.device)
+        if self.method == "ldl":
+            x = torch.from_numpy(self.ldl.solve(b.double().cpu().numpy())).to(rhs.device)
         else:
             x = conjugate_gradient(lambda y: torch.mv(self.sparse, y), b.double(), self.inverse_diagonal)
         return torch.zeros_like(rhs).index_put((self.keep,), x.to(rhs.dtype))
+
+
+def upper_triangle(symmetric: sparse.csr_matrix) -> sparse.csc_matrix:
+    """The upper triangle of a symmetric matrix in compressed columns, read off its compressed rows (whose indices
+    it sorts in place): row i's entries at columns j ≤ i are column i's at rows j ≤ i of the transpose, which is
+    the matrix itself."""
+    symmetric.sort_indices()
+    n = symmetric.shape[0]
+    row = np.repeat(np.arange(n), np.diff(symmetric.indptr))
+    lower = symmetric.indices <= row
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(row[lower], minlength=n))])
+    return sparse.csc_matrix((symmetric.data[lower], symmetric.indices[lower], indptr), shape=symmetric.shape)
 
 
 def conjugate_gradient(operator, rhs: Tensor, inverse_diagonal: Tensor, tolerance: float = TOLERANCE,
