@@ -300,7 +300,7 @@ def main() -> None:
     checks = {
         "couette": lambda: [couette(config, label) for label, config in configs.items()],
         "power_law": lambda: [power_law_couette(config, label) for label, config in configs.items()],
-        "translate": lambda: [translating(config, label, mu) for mu in (0.5, 1.0, 3.0)
+        "translate": lambda: [translating(config, label, mu) for mu in (0.5, 1.0, 3.0, 20.0)
                               for label, config in configs.items()],
         "buoyancy2d": lambda: [buoyancy_2d(config, label) for label, config in configs.items()],
         "convergence": lambda: [check(DEFAULT.replace(dx=dx), f"default, dx = {dx * 1e3:.3g} mm")

@@ -203,18 +203,50 @@ def test_translating_rod_drag_2d(pressure, mu):
     assert steady == pytest.approx(translating_rod_force(mu, speed, rig.rod.radius, rig.cup.radius), rel=0.05)
 
 
-def test_time_step_obeys_acoustic_and_viscous_limits():
+def test_time_step_obeys_acoustic_limit_and_substeps_the_viscous_one():
+    """The step keeps the acoustic Courant number; a viscosity whose explicit limit is shorter splits the shear
+    stress into substeps within that limit instead of shortening the step (or shortens it, unsplit)."""
     rig = Rig()
     cfg = SLICE
     trajectory = circle(radius=0.015, speed=0.1, duration=1.0)
     u_max = trajectory.max_speed(rig.rod.radius)
-    thin = StirringSimulator(Newtonian(eta=0.01), rig, cfg).time_step(trajectory)
-    assert thin <= cfg.cfl * cfg.dx / (cfg.sound_speed + u_max) + 1e-12
-    thick = StirringSimulator(Newtonian(eta=10.0), rig, cfg).time_step(trajectory)
-    assert thick <= cfg.viscous_safety * 1000.0 * cfg.dx**2 / (2 * 2 * 10.0) + 1e-12
-    assert thick < thin
+    viscous_limit = cfg.viscous_safety * 1000.0 * cfg.dx**2 / (2 * 2 * 10.0)
+    thin = StirringSimulator(Newtonian(eta=0.01), rig, cfg)
+    assert thin.time_step(trajectory) <= cfg.cfl * cfg.dx / (cfg.sound_speed + u_max) + 1e-12
+    assert thin.substeps(trajectory, thin.time_step(trajectory)) == 1
+    thick = StirringSimulator(Newtonian(eta=10.0), rig, cfg)
+    dt = thick.time_step(trajectory)
+    assert dt > viscous_limit
+    assert dt / thick.substeps(trajectory, dt) <= viscous_limit + 1e-12
+    assert dt / (thick.substeps(trajectory, dt) - 1) > viscous_limit  # the fewest substeps
+    unsplit = StirringSimulator(Newtonian(eta=10.0), rig, cfg.replace(viscous_substeps=False))
+    assert unsplit.time_step(trajectory) <= viscous_limit + 1e-12
+    assert unsplit.substeps(trajectory, unsplit.time_step(trajectory)) == 1
+    # the corotated baseline's viscosity is μ Δt: its step is never split
+    assert StirringSimulator(Corotated(1e5), rig, cfg).substeps(trajectory, 1e-3) == 1
     # the step divides the duration exactly
-    assert (1.0 / thick) == pytest.approx(round(1.0 / thick), abs=1e-6)
+    assert (1.0 / dt) == pytest.approx(round(1.0 / dt), abs=1e-6)
+
+
+@pytest.mark.parametrize("pressure", ["compressible", "projection"])
+def test_gradient_through_viscous_substeps(pressure):
+    """Through a rollout whose shear stress runs in substeps (a viscosity whose explicit limit is a quarter of the step), and
+    the projection's carried pressure, reverse mode equals central differences."""
+    law = Carreau(eta0=18.0, eta_inf=0.5, lam=0.3, n=0.5, **F64)
+    sim = StirringSimulator(law, Rig(), TINY.replace(pressure=pressure), density=1000.0)
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.03, ramp_time=0.01)
+    assert sim.substeps(trajectory, sim.time_step(trajectory)) == 4
+    params = [p for p in law.parameters() if p.requires_grad]
+    grads = torch.autograd.grad(_loss(sim, trajectory), params)
+    eps = 1e-5
+    for p, g in zip(params, grads):
+        with torch.no_grad():
+            p += eps
+            up = _loss(sim, trajectory)
+            p -= 2 * eps
+            down = _loss(sim, trajectory)
+            p += eps
+        assert float(g.sum()) == pytest.approx(float((up - down) / (2 * eps)), rel=1e-5, abs=1e-14)
 
 
 def test_rod_touching_the_wall_is_refused():

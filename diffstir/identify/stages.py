@@ -32,6 +32,8 @@ from .problem import StirProblem
 #: (d ln F / d ln η ≈ 0.3 at Re 25, where one step from the coarse optimum ran to the trust region's edge: a
 #: 0.2 Pa·s lab fluid read +32 % after one fine step and −2 % after three, docs/accuracy.md).
 SECANT_STEPS = 2
+SUBSTEP_COST = 0.05  # a shear-stress substep over a whole step: 0.05 of a projection step, about 0.15 of a
+#                      compressible one on the 2-D slice (scripts/viscous_substeps_study.py, docs/validation.md)
 
 
 @dataclass(frozen=True)
@@ -183,9 +185,12 @@ class Plan:
 
 
 def _steps(problem: StirProblem, model: FitModel) -> float:
-    """The steps of one simulation of ``model`` on ``problem`` at its current θ: the viscous limit shortens them
-    where the viscosity is high (a yield stress at low shear rates)."""
-    return problem.trajectory.duration / problem.simulator(model.material).time_step(problem.trajectory)
+    """The cost of one simulation of ``model`` on ``problem`` at its current θ, in steps: a high viscosity (a
+    yield stress at low shear rates) adds shear-stress substeps (``StirringSimulator.substeps``) at
+    ``SUBSTEP_COST`` of a step each, or shortens the steps where they are not split."""
+    simulator = problem.simulator(model.material)
+    dt = simulator.time_step(problem.trajectory)
+    return problem.trajectory.duration / dt * (1.0 + SUBSTEP_COST * (simulator.substeps(problem.trajectory, dt) - 1))
 
 
 def serialise(fit: FitResult) -> dict:

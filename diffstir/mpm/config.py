@@ -56,6 +56,11 @@ class SimConfig:
             not left at a fraction of its pressure. Off by default: it makes the 3-D fluid at rest hydrostatic and
             the rod's buoyancy converge at second order in dx, leaves the 2-D viscous checks unchanged, but reads
             the 2-D rod's force in a pressure gradient 4 % low and costs 1.3-2.2x a step (docs/validation.md).
+        viscous_substeps: the shear stress runs in explicit substeps within each step, as many as keep each within
+            the viscous limit ``viscous_safety * density * dx**2 / (2 * dim * eta_max)``
+            (``diffstir.mpm.step.grid_update``), so that a high viscosity (a law at ``viscosity_cap``) shortens the
+            shear stress's substeps but not the particles' transfers and the pressure's steps. False: the viscous
+            limit shortens the whole step.
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
@@ -88,6 +93,7 @@ class SimConfig:
     volume_relaxation: float = 0.05
     pressure: Literal["compressible", "projection"] = "compressible"
     wall_pressure: bool = False
+    viscous_substeps: bool = True
     dt_max: float = 1e-3
     dt: float | None = None
     headroom: float = 0.02

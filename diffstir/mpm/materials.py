@@ -72,6 +72,8 @@ class Corotated(nn.Module):
         shear_modulus: μ [Pa]; an ``nn.Parameter`` stored in log space.
     """
 
+    step_dependent = True  # its stress is the step's, μ Δt: the simulator does not split the step (``substeps``)
+
     def __init__(self, shear_modulus: float = 1e3):
         super().__init__()
         if not shear_modulus > 0:

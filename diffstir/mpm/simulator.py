@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -114,21 +114,41 @@ class StirringSimulator(nn.Module):
         return max(cfg.sound_speed, math.sqrt(pressure / (self.density * cfg.compressibility)))
 
     def time_step(self, trajectory: Trajectory) -> float:
-        """The explicit step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``; with
-        a projection the flow's limit cfl·dx/u_max),
-        the viscous limit safety·ρ dx²/(2 d η_max) and ``dt_max``, shortened so that it divides the trajectory's
-        duration."""
+        """The step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``; with a
+        projection the flow's limit cfl·dx/u_max) and ``dt_max`` (and the ``viscous_time_step`` where the shear
+        stress is not subcycled, ``substeps``), shortened so that it divides the trajectory's duration."""
         cfg = self.config
         if cfg.dt is not None:
             dt = cfg.dt
         else:
             u_max = trajectory.max_speed(self.rig.rod.radius)
-            eta_max = min(self.material.max_viscosity(SHEAR_RATE_SCALE * u_max / cfg.dx + 1.0), self.viscosity_cap)
             signal = u_max if cfg.pressure == "projection" else self.sound_speed(trajectory) + u_max
-            dt = min(cfg.cfl * cfg.dx / max(signal, 1e-12),
-                     cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12)), cfg.dt_max)
+            dt = min(cfg.cfl * cfg.dx / max(signal, 1e-12), cfg.dt_max)
+            if not self.subcycles:
+                dt = min(dt, self.viscous_time_step(trajectory))
         steps = max(1, math.ceil(trajectory.duration / dt * (1.0 - STEP_TOLERANCE)))
         return trajectory.duration / steps
+
+    def viscous_time_step(self, trajectory: Trajectory) -> float:
+        """The explicit viscous limit safety·ρ dx²/(2 d η_max) [s], η_max the material's largest viscosity up to
+        the grid's shear rate ``SHEAR_RATE_SCALE``·u_max/dx, at most ``viscosity_cap``."""
+        cfg = self.config
+        u_max = trajectory.max_speed(self.rig.rod.radius)
+        eta_max = min(self.material.max_viscosity(SHEAR_RATE_SCALE * u_max / cfg.dx + 1.0), self.viscosity_cap)
+        return cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12))
+
+    @property
+    def subcycles(self) -> bool:
+        """Whether the shear stress runs in substeps of its explicit limit (``SimConfig.viscous_substeps``); never
+        for a material whose stress depends on the step itself (``Corotated``: μ Δt)."""
+        return self.config.viscous_substeps and not getattr(self.material, "step_dependent", False)
+
+    def substeps(self, trajectory: Trajectory, dt: float) -> int:
+        """m, the shear stress's substeps in a step ``dt`` [s]: the fewest that keep dt/m within the
+        ``viscous_time_step``; 1 without subcycling."""
+        if not self.subcycles:
+            return 1
+        return max(1, math.ceil(dt / self.viscous_time_step(trajectory) * (1.0 - STEP_TOLERANCE)))
 
     def initial_state(self, trajectory: Trajectory) -> State:
         """The settled fluid around the rod at the trajectory's first pose, with the material's initial state
@@ -144,20 +164,25 @@ class StirringSimulator(nn.Module):
         """Stir along ``trajectory`` from the settled fluid (or ``initial``) and return the forces on the rod."""
         self._check_clearance(trajectory)
         dt = self.time_step(trajectory)
+        substeps = self.substeps(trajectory, dt)
         steps = int(round(trajectory.duration / dt))
         times = trajectory.t[0] + dt * np.arange(steps + 1)
         poses = self._poses(trajectory, times)
         state = initial if initial is not None else self.initial_state(trajectory)
+        if self.scene.incompressible and state.pressure is None:  # a fluid at rest: no pressure yet
+            state = replace(state, pressure=torch.zeros(self.scene.cells.corners.shape[0], dtype=state.x.dtype,
+                                                        device=state.x.device))
         self.scene.bulk_modulus = 0.0 if self.scene.incompressible else self.density * self.sound_speed(trajectory) ** 2
         forces, torques, snapshots, snapshot_times = [], [], [], []
         segment = self.config.checkpoint_every or steps
         for start in range(0, steps, segment):
             stop = min(start + segment, steps)
+            names = state.names()
 
-            def run(*tensors, start=start, stop=stop):
-                s, f, q = State.from_tensors(tensors), [], []
+            def run(*tensors, start=start, stop=stop, names=names):
+                s, f, q = State.from_tensors(tensors, names), [], []
                 for k in range(start, stop):
-                    s, force, torque = self._step(self.scene, self.material, s, poses[k], dt)
+                    s, force, torque = self._step(self.scene, self.material, s, poses[k], dt, substeps)
                     self._check_finite(s, k, dt)
                     f.append(force)
                     q.append(torque)
@@ -168,7 +193,7 @@ class StirringSimulator(nn.Module):
                 out = _Segment.apply(run, len(tensors), *tensors, *self._differentiable_inputs())
             else:
                 out = run(*state.tensors())
-            state = State.from_tensors(out[:-2])
+            state = State.from_tensors(out[:-2], names)
             forces.append(out[-2])
             torques.append(out[-1])
             if snapshot_every and (stop // snapshot_every > start // snapshot_every or start == 0):

@@ -19,6 +19,9 @@ class State:
         material: the material's own state, or None for a memoryless material: any tensor that the material
             evolves each step (``grid_update`` passes it to ``material.shear_stress(..., state=...)``), e.g. a
             structure parameter or a stress field on the grid cells (see ``diffstir.lab.physics``).
+        pressure: with an incompressible pressure, the last step's pressure in each grid cell [Pa], (cells,), from
+            which the next step's projection starts (``step.grid_update``); None before the first step and with a
+            sound speed.
     """
 
     x: Tensor
@@ -26,14 +29,20 @@ class State:
     C: Tensor
     J: Tensor
     material: Tensor | None = None
+    pressure: Tensor | None = None
+
+    def names(self) -> tuple[str, ...]:
+        """The fields that hold a tensor, in field order."""
+        return tuple(f.name for f in fields(self) if getattr(self, f.name) is not None)
 
     def tensors(self) -> tuple[Tensor, ...]:
-        """The state's tensors in field order (for checkpointing); ``material`` only when present."""
-        return tuple(getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None)
+        """The tensors of ``names`` (for checkpointing)."""
+        return tuple(getattr(self, name) for name in self.names())
 
     @classmethod
-    def from_tensors(cls, tensors: tuple[Tensor, ...]) -> "State":
-        return cls(*tensors)
+    def from_tensors(cls, tensors: tuple[Tensor, ...], names: tuple[str, ...]) -> "State":
+        """The state whose fields ``names`` hold ``tensors``."""
+        return cls(**dict(zip(names, tensors, strict=True)))
 
     @property
     def num_particles(self) -> int:

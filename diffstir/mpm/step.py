@@ -169,20 +169,33 @@ class GridUpdate(NamedTuple):
         force: the fluid's force on the rod [N] (2-D: per unit length [N/m]), (d,).
         torque: the fluid's torque on the rod about its axis [N·m] (2-D: [N]), 0-d.
         material: the material's new state (``State.material``), or None.
+        pressure: with ``scene.incompressible``, the step's pressure in each cell [Pa], (cells,) (``State.pressure``);
+            else None.
     """
 
     velocity: Tensor
     force: Tensor
     torque: Tensor
     material: Tensor | None
+    pressure: Tensor | None
 
 
 def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float,
                 material_state: Tensor | None = None, packing: Tensor | None = None,
-                wall_push: tuple[Tensor, Tensor] | None = None) -> GridUpdate:
+                wall_push: tuple[Tensor, Tensor] | None = None, substeps: int = 1,
+                pressure: Tensor | None = None) -> GridUpdate:
     """Node velocities after gravity, the shear stress, the pressure (with ``scene.incompressible``, which needs the
     nodes' fill ``packing``, ``node_fill``) and the cup's and rod's boundary conditions, with the fluid's force and
     torque on the rod.
+
+    The shear stress advances the velocity in ``substeps`` explicit steps of dt/m, each from the velocity the last
+    one left (with the walls' ghost velocities): v ← v + (dt/m) f(v) / m_i. The fluid's mass, the cells' volumes
+    and the pressure stay those of the whole step, so a step of dt resolves a viscosity whose explicit limit is
+    dt/m; the rod's reaction takes the substeps' mean force. With ``scene.incompressible`` and m > 1, the last
+    step's cell ``pressure`` [Pa] (``State.pressure``) pushes the velocity between substeps, so that they follow
+    the shear stress the pressure balances rather than a velocity that drifts from divergence-free until the step's
+    end; its push is then taken back and the projection solves for the whole step's pressure (solving for its
+    change only would leave the checkerboard's stabilisation, ``projection``, to the change).
 
     With a ``material_state`` (``State.material``), the material is called as
     ``material.shear_stress(grad_v, cap, dt, state=material_state)`` and returns the stress with its new state.
@@ -207,19 +220,38 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     v_ext = rod_ghosts(cup_ghosts(v))
     fill = torch.where(solid, 1.0, (2.0 * mass / scene.node_mass).clamp(max=1.0)).to(v.dtype)
     cell_volume = grid.dx**d * cell_min(fill, scene.cells) * cell_any(~solid, scene.cells)
-    grad_v = cell_velocity_gradient(v_ext, scene.cells)
-    if material_state is None:
-        stress = material.shear_stress(grad_v, scene.viscosity_cap, dt)
-    else:
-        stress, material_state = material.shear_stress(grad_v, scene.viscosity_cap, dt, state=material_state)
-    f_shear = nodal_forces(stress, cell_volume, scene.cells, grid.num_nodes)
     inertia = mass.clamp_min(scene.node_mass)[:, None]  # lighter nodes (walls, surface) get the bulk's inertia
-    v_visc = torch.where(has_mass[:, None], v + dt * f_shear / inertia, 0.0)
+    kick, h = None, dt / substeps
+    if scene.incompressible:
+        operator, pressure_cell = pressure_operator(scene, mass, has_mass & ~solid, solid, packing, cup_ghosts,
+                                                    rod_ghosts)
+        if pressure is not None and substeps > 1:  # the last step's pressure's impulse over one substep
+            kick = operator.impulse((h * grid.dx**d) * pressure * pressure_cell)
+    v_visc, f_shear = v, None
+    for k in range(substeps):
+        if k > 0:
+            v_ext = rod_ghosts(cup_ghosts(v_visc))
+        grad_v = cell_velocity_gradient(v_ext, scene.cells)
+        if material_state is None:
+            stress = material.shear_stress(grad_v, scene.viscosity_cap, h)
+        else:
+            stress, material_state = material.shear_stress(grad_v, scene.viscosity_cap, h, state=material_state)
+        f = nodal_forces(stress, cell_volume, scene.cells, grid.num_nodes)
+        v_visc = torch.where(has_mass[:, None], v_visc + h * f / inertia, 0.0)
+        if kick is not None and k < substeps - 1:
+            v_visc = v_visc + kick
+        f_shear = f if f_shear is None else f_shear + f
+    if kick is not None:  # the projection below solves for the whole step's pressure
+        v_visc = v_visc - (substeps - 1) * kick
+    if substeps > 1:
+        f_shear = f_shear / substeps
     f_stress = f_shear
     if scene.incompressible:
-        v_visc, f_pressure = project(scene, v_visc, mass, has_mass & ~solid, solid, packing, cup_ghosts,
-                                     rod_ghosts, dt)
-        f_stress = f_shear + f_pressure
+        impulse = project(scene, operator, pressure_cell, v_visc, packing)
+        v_visc = v_visc + operator.impulse(impulse)
+        pressure = impulse * pressure_cell / (dt * grid.dx**d)
+        # the pressure's node forces Σ_c p_c V_c ∇N_i(x_c) [N] (2-D: [N/m]); on the rod's nodes part of its reaction
+        f_stress = f_shear + divergence_transpose(impulse * pressure_cell, scene.cells, grid.num_nodes) / dt
     v_new = rod_ghosts(cup_ghosts(v_visc))
 
     # the fluid's force on the rod is the rod's reaction on its ghost nodes: the stress's node forces on them less
@@ -235,29 +267,31 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
         arm = scene.nodes[:, :2] - pose.axis
         force = force - push.sum(0)
         torque = torque - (arm[:, 0] * push[:, 1] - arm[:, 1] * push[:, 0]).sum()
-    return GridUpdate(v_new, force, torque, material_state)
+    return GridUpdate(v_new, force, torque, material_state, pressure if scene.incompressible else None)
 
 
-def project(scene: Scene, v: Tensor, mass: Tensor, fluid: Tensor, solid: Tensor, packing: Tensor,
-            cup_ghosts: GhostOperator, rod_ghosts: GhostOperator, dt: float) -> tuple[Tensor, Tensor]:
-    """The node velocities ``v`` [m/s] made divergence-free by the pressure (``projection``), with the pressure's
-    node forces Σ_c p_c V_c ∇N_i(x_c) [N] (2-D: [N/m]), (num_nodes, d), which on the rod's nodes are part of its
-    reaction. A cell carries a pressure where each corner is solid or at least ``SURFACE_FILL`` full (``packing``,
-    the nodes' fill of ``node_fill``) and one is fluid. ``mass``: the nodes' masses [kg] (2-D: [kg/m]),
-    (num_nodes,); the projection weighs the nodes by them, so that the pressure's impulse changes the fluid's
-    momentum by exactly its amount (with the bulk inertia that the viscous update gives light nodes for stability
-    the stir read high, docs/validation.md)."""
+def pressure_operator(scene: Scene, mass: Tensor, fluid: Tensor, solid: Tensor, packing: Tensor,
+                      cup_ghosts: GhostOperator, rod_ghosts: GhostOperator) -> tuple[Projection, Tensor]:
+    """The step's projection (``projection.Projection``) and its pressure cells, 1 where a cell carries a pressure
+    and 0 elsewhere, (cells,). A cell carries one where each corner is solid or at least ``SURFACE_FILL`` full
+    (``packing``, the nodes' fill of ``node_fill``) and one is fluid. ``mass``: the nodes' masses [kg] (2-D:
+    [kg/m]), (num_nodes,); the projection weighs the nodes by them, so that the pressure's impulse changes the
+    fluid's momentum by exactly its amount (with the bulk inertia that the viscous update gives light nodes for
+    stability the stir read high, docs/validation.md)."""
     full = solid | (packing >= SURFACE_FILL)
-    pressure_cell = (cell_min(full.to(v.dtype), scene.cells) * cell_any(fluid, scene.cells)).to(v.dtype)
+    pressure_cell = (cell_min(full.to(mass.dtype), scene.cells) * cell_any(fluid, scene.cells)).to(mass.dtype)
     mobility = torch.where(fluid, 1.0 / mass.clamp_min(MASS_FLOOR), 0.0)[:, None]
-    operator = Projection.of(scene.cells, scene.cell_matrices, scene.grid.num_nodes, mobility,
-                             pressure_cell, cup_ghosts, rod_ghosts, scene.node_mass)
+    return Projection.of(scene.cells, scene.cell_matrices, scene.grid.num_nodes, mobility, pressure_cell,
+                         cup_ghosts, rod_ghosts, scene.node_mass), pressure_cell
+
+
+def project(scene: Scene, operator: Projection, pressure_cell: Tensor, v: Tensor, packing: Tensor) -> Tensor:
+    """The cells' pressure impulses π_c = Δt V_c p_c [N·s·m] (2-D: [N·s]), (cells,), that make the node velocities
+    ``v`` [m/s] divergence-free up to the fill's relaxation (``projection``): v + ``operator.impulse(π)``."""
     source = scene.relaxation_rate * (cell_mean(packing, scene.cells) - 1.0)
     # the 2-D slice has no free surface: its volume is fixed, so only the fill's variation can relax
     source = source - (source * pressure_cell).sum() / pressure_cell.sum()
-    impulse = solve_pressure(operator, (source - divergence(operator.extend(v), scene.cells)) * pressure_cell)
-    force = divergence_transpose(impulse * pressure_cell, scene.cells, scene.grid.num_nodes) / dt
-    return v + operator.impulse(impulse), force
+    return solve_pressure(operator, (source - divergence(operator.extend(v), scene.cells)) * pressure_cell)
 
 
 def g2p(scene: Scene, st: Stencil, v_grid: Tensor, state: State, dt: float, v_before: Tensor | None = None,
@@ -295,8 +329,10 @@ def project_out_of_solids(scene: Scene, x: Tensor, pose: RodPose) -> Tensor:
     return torch.clamp(x, scene.particle_bounds[0], scene.particle_bounds[1])
 
 
-def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tuple[State, Tensor, Tensor]:
-    """Advance the fluid by ``dt`` [s] with the rod moving rigidly as ``pose`` says (pose at mid-step).
+def step(scene: Scene, material, state: State, pose: RodPose, dt: float,
+         substeps: int = 1) -> tuple[State, Tensor, Tensor]:
+    """Advance the fluid by ``dt`` [s] with the rod moving rigidly as ``pose`` says (pose at mid-step), the shear
+    stress in ``substeps`` explicit steps (``grid_update``).
 
     Returns the new state, the fluid's force on the rod [N] and its torque about the rod's axis [N·m]
     (in 2-D both per unit length of rod: [N/m], [N]).
@@ -305,13 +341,13 @@ def step(scene: Scene, material, state: State, pose: RodPose, dt: float) -> tupl
     d, mass = scene.dim, buffer[:, scene.dim]
     fill = node_fill(scene, mass, pose) if scene.relaxation_rate > 0 or scene.incompressible else None
     wall_push = None if scene.walls is None else wall_impulses(scene, state, st, mass, pose, dt)
-    grid = grid_update(scene, material, buffer, pose, dt, state.material, fill, wall_push)
+    grid = grid_update(scene, material, buffer, pose, dt, state.material, fill, wall_push, substeps, state.pressure)
     v_before = None
     if scene.flip > 0:
         v_before = torch.where((mass > MASS_FLOOR)[:, None], buffer[:, d + 1:] / mass.clamp_min(MASS_FLOOR)[:, None],
                                0.0)
     new = g2p(scene, st, grid.velocity, state, dt, v_before, None if scene.incompressible else fill)
-    new.material = grid.material
+    new.material, new.pressure = grid.material, grid.pressure
     tip_rate = pose.velocity[2] if scene.dim == 3 else 0.0
     end_pose = RodPose(axis=pose.axis + 0.5 * dt * pose.velocity[:2], tip=pose.tip + 0.5 * dt * tip_rate,
                        angle=pose.angle + 0.5 * dt * pose.angular_velocity, velocity=pose.velocity,
