@@ -17,6 +17,7 @@ and n only (not k or U); only inertia brings in Re = ρ U 2a / η.
     python scripts/slice_error.py --only stokes --rigs paper shallow --out /tmp/se.json
     python scripts/slice_error.py --fit docs/data/slice_error.json --out diffstir/data/slice_correction.json
     python scripts/slice_error.py --mpm paper3d --duration 3   # the 3-D MPM's steady drag (paper_e25 rig)
+    python scripts/slice_error.py --mpm fine3d --set dx=0.0025 device=cuda --duration 2
 Writes one JSON row per case to ``--out`` (default docs/data/slice_error.json) after each case; an existing file
 is refused without ``--overwrite``. Needs scikit-fem, gmsh and pyamg (``pip install -e ".[validation]"``).
 """
@@ -106,11 +107,13 @@ def write(path: Path, rows: list, command: str) -> None:
 
 
 def mpm_drag(sim_name: str, duration: float, rig_name: str = "paper_e25", viscosity: float = 1.0,
-             speed: float = 0.1, average_from: float = 0.5) -> dict:
-    """The project's 3-D MPM (``conf/sim/<sim_name>.yaml``) stirring ``RIGS[rig_name]`` along its circle (the paper's
-    rig with e = 25 mm by default: the MPM keeps the rod half a cell off the wall, 1 cm cells need e < 30 mm): the
-    drag against the motion [N] averaged over the last ``1 − average_from`` of ``duration`` [s], and the cost per
-    simulated second [s/s]."""
+             speed: float = 0.1, average_from: float = 0.5, overrides: dict | None = None,
+             bin_width: float = 0.25) -> dict:
+    """The project's 3-D MPM (``conf/sim/<sim_name>.yaml`` with ``overrides``, e.g. ``{"dx": 0.0025, "device":
+    "cuda"}``) stirring ``RIGS[rig_name]`` along its circle (the paper's rig with e = 25 mm by default: the MPM keeps
+    the rod half a cell off the wall, 1 cm cells need e < 30 mm): the drag against the motion [N] averaged over the
+    last ``1 − average_from`` of ``duration`` [s] and over bins of ``bin_width`` [s], and the cost per simulated
+    second [s/s]."""
     import numpy as np
     import torch
     import yaml
@@ -122,6 +125,7 @@ def mpm_drag(sim_name: str, duration: float, rig_name: str = "paper_e25", viscos
 
     settings = yaml.safe_load((Path(__file__).resolve().parents[1] / "conf" / "sim" / f"{sim_name}.yaml").read_text())
     settings.pop("_target_")
+    settings.update(overrides or {})
     paper = RIGS[rig_name]
     rig = Rig(cup=Cup(radius=paper.cup_radius, fill_height=paper.fill, height=paper.fill + 0.04),
               rod=Rod(radius=paper.rod_radius, immersion_depth=paper.immersion, length=paper.fill + 0.1))
@@ -133,15 +137,20 @@ def mpm_drag(sim_name: str, duration: float, rig_name: str = "paper_e25", viscos
     with torch.no_grad():
         result = sim(trajectory, initial=initial)
     seconds = time.time() - settled
-    t = result.times.numpy()
+    t = result.times.cpu().numpy()
     phase = np.unwrap(np.arctan2(np.interp(t, trajectory.t, trajectory.xy[:, 1]),
                                  np.interp(t, trajectory.t, trajectory.xy[:, 0])))
     tangent = np.stack([-np.sin(phase), np.cos(phase)], -1)
-    drag = -(result.force.double().numpy()[:, :2] * tangent).sum(-1)
+    drag = -(result.force.double().cpu().numpy()[:, :2] * tangent).sum(-1)
     late = t >= average_from * duration
-    return {"sim": sim_name, "rig": rig_name, "dx_m": sim.config.dx, "dt_s": result.dt, "steps": len(t),
-            "viscosity_pa_s": viscosity, "speed_m_per_s": speed, "duration_s": duration,
-            "drag_N": float(drag[late].mean()), "drag_std_N": float(drag[late].std()),
+    bins = np.minimum((t // bin_width).astype(int), int(np.ceil(duration / bin_width)) - 1)
+    binned = [{"from_s": b * bin_width, "to_s": min((b + 1) * bin_width, duration),
+               "drag_N": float(drag[bins == b].mean())} for b in np.unique(bins)]
+    return {"sim": sim_name, "overrides": overrides or {}, "rig": rig_name, "dx_m": sim.config.dx,
+            "pressure": sim.config.pressure, "device": str(sim.config.device), "particles": int(initial.x.shape[0]),
+            "dt_s": result.dt, "steps": len(t), "viscosity_pa_s": viscosity, "speed_m_per_s": speed,
+            "duration_s": duration, "drag_N": float(drag[late].mean()), "drag_std_N": float(drag[late].std()),
+            "drag_binned": binned,
             "settle_seconds": settled - start, "seconds": seconds, "seconds_per_simulated_second": seconds / duration}
 
 
@@ -184,6 +193,9 @@ def main() -> None:
                         help="take each rig's mesh factor from the Stokes rows of this table instead of solving them")
     parser.add_argument("--mpm", metavar="SIM", help="instead: the 3-D MPM (conf/sim/SIM.yaml) on the paper's rig")
     parser.add_argument("--duration", type=float, default=3.0, help="the MPM's stir [s]")
+    parser.add_argument("--mpm-rig", choices=tuple(RIGS), default="paper_e25", help="the MPM's rig")
+    parser.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                        help="the MPM's settings over conf/sim/SIM.yaml's, e.g. dx=0.0025 device=cuda")
     parser.add_argument("--fit", type=Path, metavar="TABLE",
                         help="instead: fit the correction model to TABLE and write it to --out")
     args = parser.parse_args()
@@ -194,7 +206,10 @@ def main() -> None:
         print(json.dumps(fit(args.fit, args.out, command), indent=1))
         return
     if args.mpm:
-        print(json.dumps(mpm_drag(args.mpm, args.duration), indent=1))
+        import yaml
+
+        overrides = {key: yaml.safe_load(value) for key, value in (item.split("=", 1) for item in args.set)}
+        print(json.dumps(mpm_drag(args.mpm, args.duration, args.mpm_rig, overrides=overrides), indent=1))
         return
     if args.out.exists() and not args.overwrite:
         parser.error(f"{args.out} exists; pass --overwrite to replace it")

@@ -310,7 +310,7 @@ def test_density_of_lab_readings_is_within_its_propagated_uncertainty(density):
 def test_the_3d_truth_preset_is_finer_than_the_paper_grid_and_synthesises(tmp_path):
     """``conf/lab/sim/truth3d.yaml`` is a 3-D grid finer than the fitting's 3-D default; the lab writes a valid 3-D
     recording through it (run here with the paper grid's 1 cm cells and sound speed, its other settings kept: its
-    own 4 mm cells take hours on a CPU), whose reading comes from the rod's whole horizontal force [N], not a
+    own 2.5 mm cells are a GPU's work), whose reading comes from the rod's whole horizontal force [N], not a
     slice's."""
     preset = OmegaConf.to_container(OmegaConf.load(CONF / "lab" / "sim" / "truth3d.yaml"))
     preset.pop("_target_")
