@@ -154,10 +154,14 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
             **({"n_error": fitted["params"]["n"] - law["params"]["n"],
                 "n_covered": _holds(fitted["ci95"].get("n"), law["params"]["n"])} if "n" in law["params"] else {}),
         }
-        if corrected:  # the shipped rectifier on the preliminary estimate, as diffstir-fit applies it
+        if corrected:  # the shipped rectifier on the preliminary estimate, with diffstir-fit's checks but its
+            # output whether or not its held-out verdict lets diffstir-fit apply it: what it would do is measured
             rectifier, metadata = load_rectifier(RECTIFIER)
-            refined = refine(rectifier, metadata, result.preliminary, result.density["value"], str(RECTIFIER))
+            verdict = metadata.get("held_out", {"applies": False, "reason": "records no held-out verdict"})
+            refined = refine(rectifier, {**metadata, "held_out": {**verdict, "applies": True}}, result.preliminary,
+                             result.density["value"], str(RECTIFIER))
             row["rectifier"] = {"preliminary": refined["preliminary"], "value": refined["value"],
+                                "applied_by_diffstir_fit": verdict["applies"], "verdict": verdict["reason"],
                                 "note": refined["note"], "eta_true": eta_true,
                                 "effective_shear_rate": result.preliminary.get("effective_shear_rate", rate)}
     return row

@@ -14,7 +14,7 @@ from diffstir.rheology import LAWS
 from diffstir.rectifier.apply import load_rectifier, refine
 from diffstir.rectifier.model import Rectifier
 from diffstir.rectifier.pairs import LAW_DRAWS, PairDesign, collect, draw_fluid, run_shard
-from diffstir.rectifier.training import PairData, evaluate, split_fluids, train
+from diffstir.rectifier.training import PairData, evaluate, held_out_verdict, split_fluids, train
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)
 
@@ -245,6 +245,28 @@ def test_a_checkpoint_refines_and_refuses_to_extrapolate(trained):
     assert other["value"] is None and "dx=0.01" in other["note"]
     thin = refine(rectifier, metadata, dict(preliminary, resolves=False), 1000.0, str(ckpt))
     assert thin["value"] is None and "not identifiable" in thin["note"]
+
+
+def test_the_held_out_verdict_applies_a_rectifier_only_where_it_lowers_the_error(trained):
+    """On unseen fluids with the gap it learned the rectifier lowers the error and is applied (its checkpoint says
+    so); on fluids without that gap (the preliminary estimate is the reference) it can only add one: not applied,
+    and why, in the verdict and in the refinement's note."""
+    data, module, ckpt = trained
+    rectifier, metadata = load_rectifier(ckpt)
+    assert metadata["held_out"]["applies"] and "lowers the held-out error" in metadata["held_out"]["reason"]
+    assert metadata["held_out"]["metrics"] == evaluate(rectifier, data.test)
+    no_gap = [dict(p, preliminary_viscosity=p["reference_viscosity"], law="newtonian") for p in data.test]
+    verdict = held_out_verdict(rectifier, no_gap)
+    assert not verdict["applies"] and "does not lower the held-out MAE" in verdict["reason"]
+    assert verdict["metrics"]["preliminary"]["mae_mpas"] == 0.0 and set(verdict["by_law"]) == {"newtonian"}
+    estimator = {"name": "newtonian_ladder", "dim": 2, "dx": 0.005, "sound_speed": 1.0}
+    preliminary = {"viscosity": 0.6 * 0.5**1.1, "mean_stirring_speed": 0.05, "resolves": True,
+                   "estimator": estimator}
+    refused = refine(rectifier, dict(metadata, held_out=verdict), preliminary, 1000.0, str(ckpt))
+    assert refused["value"] is None and refused["note"] == "not refined: the rectifier " + verdict["reason"]
+    unknown = refine(rectifier, {k: v for k, v in metadata.items() if k != "held_out"}, preliminary, 1000.0,
+                     str(ckpt))
+    assert unknown["value"] is None and "no held-out verdict" in unknown["note"]
 
 
 def test_a_residual_rectifier_corrects_the_preliminary_viscosity():

@@ -2,8 +2,9 @@
 
 The refined viscosity is given only when the recording resolves viscosity, the preliminary estimate was made with
 the simulator numerics the rectifier was trained on (``SimConfig.numerics``: resolution, sound speed, FLIP share,
-volume relaxation), and every input lies inside the training range; otherwise the value is null and ``note`` says
-why.
+volume relaxation), the rectifier lowers the error on its held-out fluids (``training.held_out_verdict``, saved
+with the checkpoint), and every input lies inside the training range; otherwise the value is null and ``note``
+says why.
 """
 
 from __future__ import annotations
@@ -47,6 +48,14 @@ def refine(rectifier: Rectifier, metadata: dict, preliminary: dict, density: flo
         return out
     if not preliminary["resolves"]:
         out["note"] = "not refined: the force does not resolve viscosity (not identifiable from this recording)"
+        return out
+    verdict = metadata.get("held_out")
+    if verdict is None:
+        out["note"] = ("not refined: the checkpoint records no held-out verdict; retrain it with "
+                       "diffstir-train-rectifier to get one")
+        return out
+    if not verdict["applies"]:
+        out["note"] = f"not refined: the rectifier {verdict['reason']}"
         return out
     x = torch.tensor([list(inputs.values())], dtype=torch.float32)
     outside = rectifier.outside_range(x[0])

@@ -133,11 +133,31 @@ def evaluate(rectifier: Rectifier, pairs: Sequence[dict]) -> dict:
     return {"preliminary": viscosity_errors(prelim, y.numpy()), "refined": viscosity_errors(refined, y.numpy())}
 
 
+def held_out_verdict(rectifier: Rectifier, pairs: Sequence[dict]) -> dict:
+    """Whether the rectifier is to be applied, from its errors on held-out fluids ``pairs``: only if it lowers both
+    the mean absolute error (the paper's metric, dominated by viscous fluids) and the median relative error (the
+    typical fluid's) of the preliminary estimate. {applies, reason, metrics, by_law (the same per truth law)}."""
+    metrics = evaluate(rectifier, pairs)
+    before, after = metrics["preliminary"], metrics["refined"]
+    lowers = {"MAE": after["mae_mpas"] < before["mae_mpas"],
+              "median relative error": after["median_relative"] < before["median_relative"]}
+    changes = (f"MAE {before['mae_mpas']:.1f} -> {after['mae_mpas']:.1f} mPa s, median relative error "
+               f"{before['median_relative']:.3f} -> {after['median_relative']:.3f} on {after['n']} held-out readings")
+    raised = [name for name, lower in lowers.items() if not lower]
+    reason = (f"lowers the held-out error ({changes})" if not raised else
+              f"does not lower the held-out {' and '.join(raised)} ({changes})")
+    laws = sorted({p["law"] for p in pairs if "law" in p})
+    return {"applies": not raised, "reason": reason, "metrics": metrics,
+            "by_law": {law: evaluate(rectifier, [p for p in pairs if p.get("law") == law]) for law in laws}}
+
+
 def train(data: PairData, *, hidden: Sequence[int] = (8,), activation: str = "tanh", learning_rate: float = 0.01,
           epochs: int = 50, early_stopping_patience: int | None = None, accelerator: str = "cpu",
           logger=False, metadata: dict | None = None, residual: bool = False) -> tuple[RectifierModule, L.Trainer]:
     """Train a rectifier on ``data``'s training fluids (standardised on them), validating on its validation
-    fluids; early stopping on ``val_loss`` when ``early_stopping_patience`` is given."""
+    fluids; early stopping on ``val_loss`` when ``early_stopping_patience`` is given. The module's metadata (saved
+    with its checkpoint) gains ``held_out``, the verdict on its test fluids (``held_out_verdict``) that decides
+    whether ``apply.refine`` uses it."""
     from lightning.pytorch.callbacks import EarlyStopping
 
     module = RectifierModule(data.inputs, hidden, activation, learning_rate, metadata=metadata, residual=residual)
@@ -148,4 +168,5 @@ def train(data: PairData, *, hidden: Sequence[int] = (8,), activation: str = "ta
                         enable_model_summary=False, log_every_n_steps=1)
     trainer.fit(module, datamodule=data)
     module.rectifier.cpu().eval()
+    module.hparams.metadata = {**(metadata or {}), "held_out": held_out_verdict(module.rectifier, data.test)}
     return module, trainer
