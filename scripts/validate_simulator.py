@@ -5,12 +5,13 @@
                                                    stir_drift numerical_viscosity]
         [--rest-time 8] [--reference-dir DIR] [--numerics LABEL ...]
 
-Every 2-D check runs the fitting default (conf/sim/slice2d.yaml: 2.5 mm cells, a FLIP share of 0.95, J relaxed
-towards the grid's packing over 50 ms, the sound speed raised per rollout to 3 % compression from 1 m/s) and, for
-comparison, the numerics it replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own
-divergence, a fixed 1 m/s) and the default with an incompressible pressure ("projection", sim.pressure=projection,
-diffstir/mpm/projection.py) and with boundary particles carrying the fluid's pressure into the solids ("wall
-pressure", sim.wall_pressure=true, diffstir/mpm/walls.py); the stir check also the default at 1 % and 0.3 %
+Every 2-D check runs the fit's fine stage (conf/sim/slice2d.yaml: 2.5 mm cells, an incompressible pressure,
+"projection", sim.pressure=projection, diffstir/mpm/projection.py, a FLIP share of 0.95, the cells' fill relaxed
+over 50 ms) and, for comparison, the same slice with a weakly compressible pressure ("compressible": the sound
+speed raised per rollout to 3 % compression from 1 m/s, J relaxed towards the grid's packing), the numerics it
+replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own divergence, a fixed 1 m/s), and
+the compressible slice with boundary particles carrying the fluid's pressure into the solids ("wall pressure",
+sim.wall_pressure=true, diffstir/mpm/walls.py); the stir check also the compressible slice at 1 % and 0.3 %
 compression. --numerics runs only the numerics whose labels start with the given words.
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
   length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
@@ -20,8 +21,8 @@ compression. --numerics runs only the numerics whose labels start with the given
   either side of it; steady force per unit length against 4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)].
 - buoyancy2d: the rod held still 15 mm off centre under a body force of 1 m/s² along x (standing in for gravity,
   which a horizontal slice lacks); steady force per unit length against -rho g pi a^2 (a sound speed of 2 m/s).
-- convergence: the Newtonian and power-law Couette checks and the 0.5 and 1 Pa s translating rod of the fitting
-  default on 5, 2.5, 2, 1.67 and 1.25 mm cells (not run by default).
+- convergence: the Newtonian and power-law Couette checks and the 0.5 and 1 Pa s translating rod, projection and
+  compressible, on 5, 2.5, 2, 1.67 and 1.25 mm cells (not run by default).
 - rest3d: the paper's 3-D scene at rest (8 s, the paper's recording length): the fluid's volume by its particles'
   J (sum J V0), the height of its centre of mass (at rest neither may change), and the vertical force against
   rho g V_immersed.
@@ -31,17 +32,17 @@ compression. --numerics runs only the numerics whose labels start with the given
   rod's motion) and the radial force averaged from 0.9 s, their deviation from the reference, the rms deviation of
   the whole force vector from 0.3 s (the simulator's force smoothed over 20 ms) and the rms of what the smoothing
   removed, both over the reference's rms force, and the sound speed and number of steps (not run by default).
-- stir_convergence: the stir at 1 Pa s with the default's numerics on 2.5, 1.67 and 1.25 mm cells, at 3 % and 1 %
+- stir_convergence: the stir at 1 Pa s with the compressible numerics on 2.5, 1.67 and 1.25 mm cells, at 3 % and 1 %
   compression and with the projection: how much of the stir's deviation is the grid's (not run by default).
 - numerical_viscosity: the viscosity [m^2/s] at which the transfers alone damp an 8-cell shear wave in an inviscid
   fluid (tests/problems.py), at time steps of 1, 0.25, 0.1 and 0.06 ms, with and without the FLIP share (not run
   by default).
-- stir_sound_speed: the stir at 1 Pa s with the default's numerics at fixed sound speeds of 2, 4, 8 and 16 m/s
+- stir_sound_speed: the stir at 1 Pa s with the compressible numerics at fixed sound speeds of 2, 4, 8 and 16 m/s
   (not run by default).
-- stir_drift: the stir at 0.2 Pa s held for 4 s (against a 4 s reference), the default and the projection with
+- stir_drift: the stir at 0.2 Pa s held for 4 s (against a 4 s reference), the compressible and the projection with
   the fill relaxed over 50 ms, 0.5 s and not at all: the drag per second and how evenly the particles fill the
   cup at the end (not run by default).
-- stir_history: the stir at 1 Pa s (the default, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
+- stir_history: the stir at 1 Pa s (compressible, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
   time windows: the drag and radial force against the reference's, and the particles next to the rod (within half
   a cell and from half a cell to one cell of its surface, per area, over the resting fluid's), and the fluid's
   angular momentum about the cup's axis at the end (not run by default).
@@ -79,25 +80,25 @@ from diffstir.trajectory import circle, spin, stationary, translate  # noqa: E40
 
 RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius
-DEFAULT = fitting_default()
-FORMER = DEFAULT.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
-PROJECTION = DEFAULT.replace(pressure="projection")
-WALL_PRESSURE = DEFAULT.replace(wall_pressure=True)
-CONFIGS = {"default": DEFAULT, "former": FORMER, "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
-STIR_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
-                "default at 0.3 %": DEFAULT.replace(compressibility=0.003), "former": FORMER,
+COMPRESSIBLE = fitting_default().replace(pressure="compressible")
+FORMER = COMPRESSIBLE.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
+PROJECTION = fitting_default()
+WALL_PRESSURE = COMPRESSIBLE.replace(wall_pressure=True)
+CONFIGS = {"compressible": COMPRESSIBLE, "former": FORMER, "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
+STIR_CONFIGS = {"compressible": COMPRESSIBLE, "compressible at 1 %": COMPRESSIBLE.replace(compressibility=0.01),
+                "compressible at 0.3 %": COMPRESSIBLE.replace(compressibility=0.003), "former": FORMER,
                 "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
-STIR_SOUND_SPEEDS = {f"default, c = {c:g} m/s": DEFAULT.replace(compressibility=None, sound_speed=c)
+STIR_SOUND_SPEEDS = {f"compressible, c = {c:g} m/s": COMPRESSIBLE.replace(compressibility=None, sound_speed=c)
                      for c in (2.0, 4.0, 8.0, 16.0)}  # m/s
 STIR_VISCOSITIES = (0.05, 0.2, 1.0, 3.0)  # Pa s
-DRIFT_CONFIGS = {"default": DEFAULT, **{f"projection{'' if tau == 0.05 else f', relaxation {tau:g} s'}":
+DRIFT_CONFIGS = {"compressible": COMPRESSIBLE, **{f"projection{'' if tau == 0.05 else f', relaxation {tau:g} s'}":
                                         PROJECTION.replace(volume_relaxation=tau) for tau in (0.05, 0.5, 0.0)}}
-HISTORY_CONFIGS = {"default": DEFAULT, "default at 1 %": DEFAULT.replace(compressibility=0.01),
-                   "default, APIC (flip 0)": DEFAULT.replace(flip=0.0),
-                   "default, relaxation 10 ms": DEFAULT.replace(volume_relaxation=0.01)}
-STIR_CONVERGENCE = {f"{label}, dx = {dx * 1e3:.3g} mm": DEFAULT.replace(dx=dx, **changes)
+HISTORY_CONFIGS = {"compressible": COMPRESSIBLE, "compressible at 1 %": COMPRESSIBLE.replace(compressibility=0.01),
+                   "compressible, APIC (flip 0)": COMPRESSIBLE.replace(flip=0.0),
+                   "compressible, relaxation 10 ms": COMPRESSIBLE.replace(volume_relaxation=0.01)}
+STIR_CONVERGENCE = {f"{label}, dx = {dx * 1e3:.3g} mm": COMPRESSIBLE.replace(dx=dx, **changes)
                     for dx in (0.0025, 0.005 / 3, 0.00125)
-                    for label, changes in (("default", {}), ("default at 1 %", {"compressibility": 0.01}),
+                    for label, changes in (("compressible", {}), ("compressible at 1 %", {"compressibility": 0.01}),
                                            ("projection", {"pressure": "projection"}))}
 
 
@@ -303,7 +304,8 @@ def main() -> None:
         "translate": lambda: [translating(config, label, mu) for mu in (0.5, 1.0, 3.0, 20.0)
                               for label, config in configs.items()],
         "buoyancy2d": lambda: [buoyancy_2d(config, label) for label, config in configs.items()],
-        "convergence": lambda: [check(DEFAULT.replace(dx=dx), f"default, dx = {dx * 1e3:.3g} mm")
+        "convergence": lambda: [check(config.replace(dx=dx), f"{label}, dx = {dx * 1e3:.3g} mm")
+                                for label, config in configs.items() if label in ("projection", "compressible")
                                 for dx in (0.005, 0.0025, 0.002, 0.0025 / 1.5, 0.00125)
                                 for check in (couette, power_law_couette, partial(translating, mu=0.5),
                                               translating)],
@@ -321,10 +323,10 @@ def main() -> None:
     if "stir_convergence" in args.checks:
         stir(args.reference_dir, pick(STIR_CONVERGENCE), (1.0,))
     if "numerical_viscosity" in args.checks:
-        print("\n| Δt [ms] | numerical viscosity, default [m²/s] | APIC alone (flip 0) [m²/s] |\n|---|---|---|")
+        print("\n| Δt [ms] | numerical viscosity, FLIP share 0.95 [m²/s] | APIC alone (flip 0) [m²/s] |\n|---|---|---|")
         for dt in (1e-3, 2.5e-4, 1e-4, 6e-5):  # s
-            print(f"| {dt * 1e3:g} | {numerical_viscosity(DEFAULT.replace(dt=dt), None):.2e} | "
-                  f"{numerical_viscosity(DEFAULT.replace(dt=dt, flip=0.0), None):.2e} |", flush=True)
+            print(f"| {dt * 1e3:g} | {numerical_viscosity(COMPRESSIBLE.replace(dt=dt), None):.2e} | "
+                  f"{numerical_viscosity(COMPRESSIBLE.replace(dt=dt, flip=0.0), None):.2e} |", flush=True)
     if "stir_sound_speed" in args.checks:
         stir(args.reference_dir, STIR_SOUND_SPEEDS, (1.0,))
     if "stir_history" in args.checks:

@@ -596,7 +596,8 @@ def test_fit_app_writes_a_report(period_recordings, tmp_path, monkeypatch):
     out = tmp_path / "out"
     monkeypatch.setattr(sys, "argv", ["diffstir-fit", f"recording={path}", f"out={out}", "model=[newtonian]",
                                       "baseline=false", "density=1000", "~coarse", "sim.dx=0.01",
-                                      f"sim.sound_speed={FAST.sound_speed}", "sim.compressibility=null",
+                                      f"sim.pressure={FAST.pressure}", f"sim.sound_speed={FAST.sound_speed}",
+                                      "sim.compressibility=null",
                                       "fit.window=0.3", "fit.max_iterations=3", "fit.sensor_nuisance=[lag]",
                                       "progress=false"])
     main()

@@ -36,10 +36,9 @@ MAX_FACTOR = 3.0            # a log-scaled parameter known to within a factor 3 
 MAX_LINEAR_HALF_WIDTH = 0.5  # a dimensionless index known to within ±0.5
 AT_BOUND = 1e-3              # of the θ range: closer than this to a bound counts as on it
 
-#: σ_m, the relative 1-σ error of the default fitting grid's force (the 2-D slice, dx = 2.5 mm): the rms of its
-#: closed-form checks when it was set, the Newtonian Couette torque −3.2 % and the power-law one +2.8 %. At
-#: today's default (wall-node fix, c = 1 m/s) the Couette torques read −2.7 % and +5.8 % and the translating
-#: rod +2.5 % at 1 Pa·s but +34 % at 0.2 Pa·s (docs/validation.md); σ_m has not been revisited.
+#: σ_m, the relative 1-σ error of the fine stage's force (``conf/sim/slice2d.yaml``: the 2-D slice, dx = 2.5 mm,
+#: incompressible): the paper's stir against the finite-element reference reads +4.3, −2.3 and −4.1 % at 0.2, 1
+#: and 3 Pa·s (rms 3.7 %) and the closed forms are within 3.6 % from 0.5 to 3 Pa·s (docs/validation.md).
 MODEL_FORCE_ERROR = 0.03
 #: σ_m of the coarse grid (``conf/sim/coarse2d.yaml``, dx = 5 mm): its Newtonian Couette torque was 6.3 % low
 #: when this was set (7.9 % since the wall-node fix, docs/validation.md).

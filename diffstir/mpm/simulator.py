@@ -175,9 +175,9 @@ class StirringSimulator(nn.Module):
         self.scene.bulk_modulus = 0.0 if self.scene.incompressible else self.density * self.sound_speed(trajectory) ** 2
         forces, torques, snapshots, snapshot_times = [], [], [], []
         segment = self.config.checkpoint_every or steps
+        names = state.names()  # the fields a step carries, the same in every segment
         for start in range(0, steps, segment):
             stop = min(start + segment, steps)
-            names = state.names()
 
             def run(*tensors, start=start, stop=stop, names=names):
                 s, f, q = State.from_tensors(tensors, names), [], []
