@@ -11,16 +11,7 @@
 #
 # Runs from the repository root with the diffstir package on PYTHONPATH (no install needed); writes each part's
 # output to OUT_DIR.
-set -uo pipefail
-out=${1:?usage: scripts/gpu_check.sh OUT_DIR [DEADLINE]}
-deadline=${2:-1200}
-mkdir -p "$out"
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 DIFFSTIR_CACHE_DIR="${TMPDIR:-/tmp}/diffstir-gpu-check"
-start=$(date +%s)
-lap() { echo "== $1: $(( $(date +%s) - start )) s since the start"; }
-
-nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$out/gpu.txt"
-python3 -c "import torch, sys; print('python', sys.version.split()[0], 'torch', torch.__version__)" | tee -a "$out/gpu.txt"
+source "$(dirname "$0")/gpu_run.sh"
 lap "tests"
 python3 -m pytest -q -p no:cacheprovider tests/test_cuda.py 2>&1 | tee "$out/tests.txt"
 python3 -m pytest -q -p no:cacheprovider tests/test_rheology_laws.py -k cuda 2>&1 | tee -a "$out/tests.txt"

@@ -8,16 +8,7 @@
 #
 # Runs from the repository root with the diffstir package on PYTHONPATH (no install needed; scripts/slice_error.py
 # imports scikit-fem); writes each run's JSON to OUT_DIR.
-set -uo pipefail
-out=${1:?usage: scripts/mpm3d_error_gpu.sh OUT_DIR [DEADLINE]}
-deadline=${2:-1200}
-mkdir -p "$out"
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 DIFFSTIR_CACHE_DIR="${TMPDIR:-/tmp}/diffstir-mpm3d"
-start=$(date +%s)
-lap() { echo "== $1: $(( $(date +%s) - start )) s since the start"; }
-
-nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$out/gpu.txt"
-python3 -c "import torch, sys; print('python', sys.version.split()[0], 'torch', torch.__version__)" | tee -a "$out/gpu.txt"
+source "$(dirname "$0")/gpu_run.sh"
 lap "1 cm"
 python3 scripts/slice_error.py --mpm paper3d --duration 3 --set device=cuda 2>&1 | tee "$out/mpm3d_10mm.json"
 lap "5 mm"

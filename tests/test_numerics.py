@@ -31,10 +31,11 @@ def test_transfers_add_little_viscosity_at_any_time_step(dt, cache_dir):
 
 def test_resting_fluid_measures_its_own_packing(cache_dir):
     """After settling, the packing the grid measures, with the cup's walls and the rod counted as resting fluid, is
-    the particles' own volume ratio (with a compressible pressure, whose J it relaxes): no particle of the 2-D slice lies at a free surface (every one relaxes at 90 % of
-    the full rate or more: its emptiest stencil node is 95 % full); both ratios' rms deviation
-    from 1 is under a quarter of the compression δ the fitting default allows a stir (3 %: the rest's pressure noise
-    κ·rms stays small against the stir's pressure), and no particle's J is off by the whole δ."""
+    the particles' own volume ratio (with a compressible pressure, whose J it relaxes): no particle of the 2-D slice
+    lies at a free surface (every one relaxes at 90 % of the full rate or more: its emptiest stencil node is 95 %
+    full); both ratios' rms deviation from 1 is under a quarter of the compression δ the compressible slice allows a
+    stir (3 %: the rest's pressure noise κ·rms stays small against the stir's pressure), and no particle's J is off
+    by the whole δ."""
     sim = StirringSimulator(Newtonian(eta=1.0), Rig(), COMPRESSIBLE, density=1000.0, cache_dir=cache_dir)
     trajectory = circle(radius=0.015, speed=0.1, duration=0.1)
     state = sim.initial_state(trajectory)

@@ -68,6 +68,7 @@ def main(cfg: DictConfig) -> None:
                             metadata=metadata)
     seconds = time.perf_counter() - started
     trainer.save_checkpoint(out / "rectifier.ckpt")
+    held_out = module.hparams.metadata["held_out"]  # the verdict on the test fluids, with their metrics
     card = {
         "command": " ".join(["diffstir-train-rectifier", *map(shlex.quote, sys.argv[1:])]),
         "trained": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -79,14 +80,14 @@ def main(cfg: DictConfig) -> None:
         "epochs": trainer.current_epoch, "seconds": seconds,
         "training_range": {name: [float(lo), float(hi)] for name, lo, hi in
                            zip(module.rectifier.inputs, module.rectifier.x_min, module.rectifier.x_max)},
-        "metrics": {"val": evaluate(module.rectifier, data.val), "test": evaluate(module.rectifier, data.test)},
-        "held_out": module.hparams.metadata["held_out"],
+        "metrics": {"val": evaluate(module.rectifier, data.val), "test": held_out["metrics"]},
+        "held_out": held_out,
     }
     (out / "card.json").write_text(json.dumps(card, indent=1) + "\n")
     test = card["metrics"]["test"]
     print(f"test fluids: MAE {test['preliminary']['mae_mpas']:.1f} -> {test['refined']['mae_mpas']:.1f} mPa s, "
           f"RMSE {test['preliminary']['rmse_mpas']:.1f} -> {test['refined']['rmse_mpas']:.1f} mPa s; "
-          f"{'applied' if card['held_out']['applies'] else 'not applied'}: it {card['held_out']['reason']}; "
+          f"{'applied' if held_out['applies'] else 'not applied'}: it {held_out['reason']}; "
           f"wrote {out / 'rectifier.ckpt'} and {out / 'card.json'}")
 
 
