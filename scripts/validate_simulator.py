@@ -2,8 +2,8 @@
 
     python scripts/validate_simulator.py [--checks couette power_law translate buoyancy2d convergence rest3d stir
                                                    stir_convergence stir_sound_speed stir_history
-                                                   stir_drift numerical_viscosity]
-        [--rest-time 8] [--reference-dir DIR] [--numerics LABEL ...]
+                                                   stir_drift stir_timestep numerical_viscosity]
+        [--rest-time 8] [--reference-dir DIR] [--numerics LABEL ...] [--set KEY=VALUE ...]
 
 Every 2-D check runs the fit's fine stage (conf/sim/slice2d.yaml: 2.5 mm cells, an incompressible pressure,
 "projection", sim.pressure=projection, diffstir/mpm/projection.py, a FLIP share of 0.95, the cells' fill relaxed
@@ -12,7 +12,8 @@ speed raised per rollout to 3 % compression from 1 m/s, J relaxed towards the gr
 replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own divergence, a fixed 1 m/s), and
 the compressible slice with boundary particles carrying the fluid's pressure into the solids ("wall pressure",
 sim.wall_pressure=true, diffstir/mpm/walls.py); the stir check also the compressible slice at 1 % and 0.3 %
-compression. --numerics runs only the numerics whose labels start with the given words.
+compression. --numerics runs only the numerics whose labels start with the given words; --set KEY=VALUE sets
+SimConfig fields on each of them (e.g. dt_max=0.004 for a longer step).
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
   length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
 - power_law: the same with a power-law fluid, K = 1 Pa s^n, n = 0.6, Omega = 1 rad/s (Re = 0.6 at the rod), against
@@ -35,13 +36,18 @@ compression. --numerics runs only the numerics whose labels start with the given
 - stir_convergence: the stir at 1 Pa s with the compressible numerics on 2.5, 1.67 and 1.25 mm cells, at 3 % and 1 %
   compression and with the projection: how much of the stir's deviation is the grid's (not run by default).
 - numerical_viscosity: the viscosity [m^2/s] at which the transfers alone damp an 8-cell shear wave in an inviscid
-  fluid (tests/problems.py), at time steps of 1, 0.25, 0.1 and 0.06 ms, with and without the FLIP share (not run
-  by default).
+  fluid (tests/problems.py), with the projection at time steps of 2, 1, 0.5, 0.25 and 0.1 ms and the compressible
+  pressure at 1, 0.25, 0.1 and 0.06 ms, with and without the FLIP share (not run by default).
 - stir_sound_speed: the stir at 1 Pa s with the compressible numerics at fixed sound speeds of 2, 4, 8 and 16 m/s
   (not run by default).
 - stir_drift: the stir at 0.2 Pa s held for 4 s (against a 4 s reference), the compressible and the projection with
   the fill relaxed over 50 ms, 0.5 s and not at all: the drag per second and how evenly the particles fill the
   cup at the end (not run by default).
+- stir_timestep: the stir with the projection at several time steps, each with the transfers' numerical viscosity
+  ν_num at its step (as numerical_viscosity measures it): at 0.1 Pa s (Re = 25) at 4, 2, 1, 0.5 and 0.25 ms, on
+  1.67 mm cells, and simulated at η − ρ ν_num at 1 and 0.5 ms; at 0.05, 1 and 3 Pa s at 4, 2 and 1 ms. The drag,
+  the radial force and the fluid's angular momentum against the reference's (not run by default; 0.05 Pa s's
+  reference takes a few minutes).
 - stir_history: the stir at 1 Pa s (compressible, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
   time windows: the drag and radial force against the reference's, and the particles next to the rod (within half
   a cell and from half a cell to one cell of its surface, per area, over the resting fluid's), and the fluid's
@@ -63,6 +69,7 @@ from functools import partial
 from pathlib import Path
 
 import torch
+import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from problems import (couette_torque_newtonian, couette_torque_power_law, fitting_default,  # noqa: E402
@@ -173,9 +180,13 @@ def stir_reference(viscosity: float, directory: Path, duration: float = 1.5) -> 
     return dict(np.load(path))
 
 
-def stir_row(config: SimConfig, label: str, viscosity: float, reference: dict) -> str:
+def stir_run(config: SimConfig, viscosity: float, reference: dict, simulated_viscosity: float | None = None) -> dict:
+    """The paper's stir at ``viscosity`` [Pa s] (simulated with ``simulated_viscosity`` where given) against the
+    ``reference``: drag and radial force [N/m] from 0.9 s and the reference's, the rms deviation and noise over the
+    reference's rms force [1], the steps, the sound speed and the fluid's angular momentum about the cup's axis at
+    the end over the reference's [1]."""
     trajectory = circle(radius=0.015, speed=0.1, duration=1.5)
-    sim = StirringSimulator(Newtonian(eta=viscosity), RIG, config, density=1000.0)
+    sim = StirringSimulator(Newtonian(eta=simulated_viscosity or viscosity), RIG, config, density=1000.0)
     with torch.no_grad():
         result = sim(trajectory)
     t = result.times.double().numpy()
@@ -190,12 +201,46 @@ def stir_row(config: SimConfig, label: str, viscosity: float, reference: dict) -
     deviation = np.sqrt(np.mean((np.interp(t_ref[window], t, radial_s) - reference["radial"][window]) ** 2
                                 + (np.interp(t_ref[window], t, along_s) - reference["tangential"][window]) ** 2))
     noise = np.sqrt(np.mean((along - along_s)[width:-width] ** 2 + (radial - radial_s)[width:-width] ** 2))
-    drag, drag_ref = -np.interp(t_ref[late], t, along_s).mean(), -reference["tangential"][late].mean()
-    side, side_ref = np.interp(t_ref[late], t, radial_s).mean(), reference["radial"][late].mean()
-    sound = f"{sim.sound_speed(trajectory):.2f}" if config.pressure == "compressible" else "none"
-    return (f"| {viscosity:g} | {label} | {sound} | {len(t)} | {drag:.4f} | {drag_ref:.4f} | "
-            f"{100 * (drag / drag_ref - 1):+.1f} % | {side:+.4f} | {side_ref:+.4f} | {100 * deviation / scale:.1f} % | "
-            f"{100 * noise / scale:.1f} % |")
+    x, v = result.state.x.double(), result.state.v.double()
+    spin = float(sim.scene.particle_mass * (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0]).sum())
+    return {"drag": -np.interp(t_ref[late], t, along_s).mean(), "drag_ref": -reference["tangential"][late].mean(),
+            "radial": np.interp(t_ref[late], t, radial_s).mean(), "radial_ref": reference["radial"][late].mean(),
+            "deviation": deviation / scale, "noise": noise / scale, "steps": len(t),
+            "sound": f"{sim.sound_speed(trajectory):.2f}" if config.pressure == "compressible" else "none",
+            "spin": spin / reference["angular_momentum"][-1]}
+
+
+def stir_row(config: SimConfig, label: str, viscosity: float, reference: dict) -> str:
+    r = stir_run(config, viscosity, reference)
+    return (f"| {viscosity:g} | {label} | {r['sound']} | {r['steps']} | {r['drag']:.4f} | {r['drag_ref']:.4f} | "
+            f"{100 * (r['drag'] / r['drag_ref'] - 1):+.1f} % | {r['radial']:+.4f} | {r['radial_ref']:+.4f} | "
+            f"{100 * r['deviation']:.1f} % | {100 * r['noise']:.1f} % |")
+
+
+def stir_timestep(directory: Path, density: float = 1000.0) -> None:
+    """The stir with the projection at several time steps: at 0.1 Pa s (Re = 25) from 4 to 0.25 ms, on 1.67 mm
+    cells, and simulated at η − ρ ν_num (the viscosity the transfers' damping brings back to η) at 1 and 0.5 ms;
+    at 0.05, 1 and 3 Pa s at 1, 2 and 4 ms. Each run with the transfers' numerical viscosity ν_num [m²/s] at its
+    step (``numerical_viscosity``) and the fluid's density ``density`` [kg/m³]."""
+    runs = ([(0.1, "projection", 0.0025, dt, False) for dt in (4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4)]  # Pa s, m, s
+            + [(0.1, "projection", 0.0025, dt, True) for dt in (1e-3, 5e-4)]
+            + [(0.1, "projection, dx = 1.67 mm", 0.0025 / 1.5, 1e-3, False)]
+            + [(eta, "projection", 0.0025, dt, False)
+               for eta in (0.05, 1.0, 3.0) for dt in (4e-3, 2e-3, 1e-3)])
+    print("\n| η [Pa·s] | numerics | Δt [ms] | ν_num [m²/s] | ρ ν_num / η | simulated η [Pa·s] | drag [N/m] | "
+          "reference | deviation | radial [N/m] | reference | angular momentum / reference |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
+    nu = {}
+    for viscosity, label, dx, dt, compensated in runs:
+        reference = stir_reference(viscosity, directory)
+        config = PROJECTION.replace(dx=dx, dt=dt)
+        if (dx, dt) not in nu:
+            nu[dx, dt] = numerical_viscosity(config, None)
+        simulated = viscosity - density * nu[dx, dt] if compensated else viscosity
+        r, share = stir_run(config, viscosity, reference, simulated), density * nu[dx, dt] / viscosity
+        print(f"| {viscosity:g} | {label} | {dt * 1e3:g} | {nu[dx, dt]:.2e} | {share:.3f} | {simulated:.4g} | "
+              f"{r['drag']:.4f} | {r['drag_ref']:.4f} | {100 * (r['drag'] / r['drag_ref'] - 1):+.1f} % | "
+              f"{r['radial']:+.4f} | {r['radial_ref']:+.4f} | {r['spin']:.3f} |", flush=True)
 
 
 def stir_history(directory: Path, viscosity: float = 1.0) -> None:
@@ -274,8 +319,8 @@ def _orbit_components(trajectory, t: np.ndarray, force: np.ndarray) -> tuple[np.
 
 
 def stir(directory: Path, configs: dict[str, SimConfig], viscosities: tuple[float, ...]) -> None:
-    print("\n| η [Pa·s] | numerics | c [m/s] | steps | drag [N/m] | reference | deviation | radial [N/m] | reference | "
-          "rms deviation | rms noise |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| η [Pa·s] | numerics | c [m/s] | steps | drag [N/m] | reference | deviation | radial [N/m] | "
+          "reference | rms deviation | rms noise |\n|---|---|---|---|---|---|---|---|---|---|---|")
     for viscosity in viscosities:
         reference = stir_reference(viscosity, directory)
         for label, config in configs.items():
@@ -291,10 +336,17 @@ def main() -> None:
                         "(e.g. projection; default: all)")
     parser.add_argument("--reference-dir", type=Path, default=Path("outputs/stir-reference"),
                         help="where the stir check keeps its finite-element references")
+    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="SimConfig fields set on every numerics the checks pick (e.g. dt_max=0.004; not "
+                        "rest3d's or stir_timestep's, which set their own)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    pick = (lambda configs: {k: v for k, v in configs.items() if any(k.startswith(n) for n in args.numerics)}
-            ) if args.numerics else (lambda configs: configs)
+    changes = {key: yaml.safe_load(value) for key, value in (item.split("=", 1) for item in args.set)}
+
+    def pick(configs: dict[str, SimConfig]) -> dict[str, SimConfig]:
+        chosen = {k: v for k, v in configs.items() if not args.numerics or any(k.startswith(n) for n in args.numerics)}
+        return {k: v.replace(**changes) for k, v in chosen.items()}
+
     configs = pick(CONFIGS)
     print(f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f} at start, torch {torch.__version__}, 1 thread, float32")
@@ -323,16 +375,21 @@ def main() -> None:
     if "stir_convergence" in args.checks:
         stir(args.reference_dir, pick(STIR_CONVERGENCE), (1.0,))
     if "numerical_viscosity" in args.checks:
-        print("\n| Δt [ms] | numerical viscosity, FLIP share 0.95 [m²/s] | APIC alone (flip 0) [m²/s] |\n|---|---|---|")
-        for dt in (1e-3, 2.5e-4, 1e-4, 6e-5):  # s
-            print(f"| {dt * 1e3:g} | {numerical_viscosity(COMPRESSIBLE.replace(dt=dt), None):.2e} | "
-                  f"{numerical_viscosity(COMPRESSIBLE.replace(dt=dt, flip=0.0), None):.2e} |", flush=True)
+        print("\n| numerics | Δt [ms] | numerical viscosity, FLIP share 0.95 [m²/s] | APIC alone (flip 0) [m²/s] |\n"
+              "|---|---|---|---|")
+        for label, config, steps in (("projection", PROJECTION, (2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4)),
+                                     ("compressible", COMPRESSIBLE, (1e-3, 2.5e-4, 1e-4, 6e-5))):  # s
+            for dt in steps:
+                print(f"| {label} | {dt * 1e3:g} | {numerical_viscosity(config.replace(dt=dt), None):.2e} | "
+                      f"{numerical_viscosity(config.replace(dt=dt, flip=0.0), None):.2e} |", flush=True)
     if "stir_sound_speed" in args.checks:
         stir(args.reference_dir, STIR_SOUND_SPEEDS, (1.0,))
     if "stir_history" in args.checks:
         stir_history(args.reference_dir)
     if "stir_drift" in args.checks:
         stir_drift(args.reference_dir, pick(DRIFT_CONFIGS))
+    if "stir_timestep" in args.checks:
+        stir_timestep(args.reference_dir)
 
 
 if __name__ == "__main__":

@@ -365,8 +365,9 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
     """Whether the sensor resolves the viscosity: the rms change of the reading for a factor 2 in η, against the
     reading's noise level (and the sensor's resolution); and the drag's viscous share e = d ln F / d ln η [1], the
     least-squares slope (J·p)/(p·p) of the Newtonian fit's Jacobian J = d p / d ln η on its readings p. A drag
-    F = F_v + F_i with F_v ∝ η has e = F_v / F; below ``VISCOUS_SHARE_FLOOR`` the stir is inertia-dominated, and
-    the simulator's relative force error σ_m moves ln η by about σ_m / e (``uncertainty.laplace`` holds it)."""
+    F = F_v + F_i with F_v ∝ η has e = F_v / F; below ``VISCOUS_SHARE_FLOOR`` the stir is inertia-dominated: a
+    relative error ε of the simulated drag moves ln η by about ε / e, while ``uncertainty.laplace`` holds the
+    simulator's error σ_m as a scale of the whole force, which moves ln η by only (J·p)/(J·J) σ_m."""
     jacobian, readings = newtonian.jacobian[problem.train, 0], newtonian.simulated_readings[problem.train]
     change = float(np.sqrt(np.mean((jacobian * math.log(2.0)) ** 2)))
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)

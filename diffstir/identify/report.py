@@ -70,9 +70,11 @@ def markdown(summary: dict) -> str:
                      f"({summary['resolvable']['noise']:.3g} N); the fitted numbers are not measurements")
     if summary["resolvable"].get("inertia_dominated"):
         lines.append(f"- **inertia-dominated** stir: the part of the drag that scales with the viscosity is "
-                     f"{100 * summary['resolvable']['viscous_share']:.0f} % of it, so the simulator's force error "
-                     "moves the viscosity by about that error over this share (in every interval); stir slower "
-                     "(a lower Reynolds number) to measure a thin fluid")
+                     f"{100 * summary['resolvable']['viscous_share']:.0f} % of it, so a relative error of the "
+                     "simulated drag moves the viscosity by about that error over this share; the intervals hold the "
+                     "simulator's error as a scale of the whole force (fit.model_error), which the waveform tells "
+                     "apart from a change of viscosity, and are too narrow for such a stir; stir slower (a lower "
+                     "Reynolds number) to measure a thin fluid")
     magnitude = summary.get("magnitude")
     if magnitude is not None:
         lo, hi = magnitude["ci95"]
