@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate, to_absolute_path
@@ -16,38 +17,61 @@ from omegaconf import DictConfig, OmegaConf
 from diffstir.apps import Run, command
 from diffstir.errors import OutputError
 from diffstir.lab import (
-    Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, synthesise_blend, truth_path,
-    write_lab_recording,
+    Blend, FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise,
+    synthesise_blend, truth_path, write_lab_recording,
 )
+from diffstir.mpm import SimConfig
+from diffstir.rig import Rig
+from diffstir.trajectory import Trajectory
 
 
 @command("diffstir-synth", "synth")
 def main(cfg: DictConfig) -> None:
-    lab = OmegaConf.to_container(cfg.lab, resolve=True)
-    rig, sim_config = instantiate(cfg.rig), instantiate(cfg.lab.sim)
-    fluid = Fluid.from_mapping(lab["fluid"])
-    programme = lab["programme"]
-    trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
-                                    ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
+    setup = lab_setup(cfg)
     choices = HydraConfig.get().runtime.choices
-    name = cfg.name or choices["lab/blend" if lab.get("blend") else "lab/fluid"]
+    name = cfg.name or choices["lab/blend" if setup.blend else "lab/fluid"]
     path = Path(to_absolute_path(str(cfg.out))) / name
     for existing in (path, truth_path(path)):
         if existing.exists() and not cfg.overwrite:
             raise OutputError(f"{existing}: already exists; give another name= or out=, or overwrite=true")
     started = time.perf_counter()
-    sensor = SensorModel(**lab["sensor"])
-    if lab.get("blend"):
-        result = synthesise_blend(_blend(lab["blend"]), trajectory, rig=rig, sim_config=sim_config, sensor=sensor,
-                                  seed=int(cfg.seed), name=name, label=cfg.label, programme=programme)
+    common = dict(rig=setup.rig, sim_config=setup.sim_config, sensor=setup.sensor, seed=int(cfg.seed), name=name,
+                  label=cfg.label, programme=setup.programme)
+    if setup.blend:
+        result = synthesise_blend(setup.blend, setup.trajectory, **common)
     else:
-        result = synthesise(fluid, trajectory, rig=rig, sim_config=sim_config, sensor=sensor,
-                            physics=HiddenPhysicsSpec.from_mapping(lab["physics"]), seed=int(cfg.seed), name=name,
-                            label=cfg.label, programme=programme)
+        result = synthesise(setup.fluid, setup.trajectory, physics=setup.physics, **common)
     Run.writes(path.parent)
     recording, truth = write_lab_recording(result, path, overwrite=bool(cfg.overwrite))
     print(f"{result.truth['simulator']['steps']} steps of {result.truth['simulator']['dt']:.3g} s in "
           f"{time.perf_counter() - started:.0f} s; wrote {recording} ({result.recording.t.size} rows) and {truth}")
+
+
+class LabSetup(NamedTuple):
+    """What a ``diffstir-synth`` configuration describes, built: the rig, the truth's simulation settings, the
+    fluid (or the blend of two), the stirring programme (its mapping and its trajectory), the sensor and the hidden
+    physics."""
+
+    rig: Rig
+    sim_config: SimConfig | FiniteElementTruth
+    fluid: Fluid
+    blend: Blend | None
+    programme: dict
+    trajectory: Trajectory
+    sensor: SensorModel
+    physics: HiddenPhysicsSpec
+
+
+def lab_setup(cfg: DictConfig) -> LabSetup:
+    """The ``LabSetup`` of a composed ``synth`` configuration; a wrong setting raises before any simulation."""
+    lab = OmegaConf.to_container(cfg.lab, resolve=True)
+    programme = lab["programme"]
+    trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
+                                    ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
+    return LabSetup(rig=instantiate(cfg.rig), sim_config=instantiate(cfg.lab.sim),
+                    fluid=Fluid.from_mapping(lab["fluid"]), blend=_blend(lab["blend"]) if lab.get("blend") else None,
+                    programme=programme, trajectory=trajectory, sensor=SensorModel(**lab["sensor"]),
+                    physics=HiddenPhysicsSpec.from_mapping(lab["physics"]))
 
 
 def _blend(cfg: dict) -> Blend:
