@@ -57,10 +57,8 @@ from .windows import SpeedWindow
 
 #: Gauss-Newton iterations of each law's best start from a fresh finite-difference Jacobian, after its budget.
 #: The Broyden updates that carry the first Jacobian through the budget converge slowly, and laws compared by BIC
-#: must each be at its optimum: without these steps the power-law fluid of
-#: ``test_joint_fit_tells_a_yield_stress_from_a_power_law`` (readings of the fitting model itself) was called a
-#: yield stress, its power law still short of the noise floor where a Herschel-Bulkley fit, one parameter freer,
-#: had reached it.
+#: must each be at its optimum: a power law still short of the noise floor loses to a Herschel-Bulkley fit, one
+#: parameter freer, that has reached it, and a power-law fluid reads as a yield stress.
 POLISH_ITERATIONS = 2
 
 #: Shifts of a law's index n [1] in its first start screen (``index_starts``): the size by which the 5 mm grid's
@@ -71,9 +69,8 @@ INDEX_SHIFTS = (-0.15, 0.15)
 #: Shares of the lowest speed's stress that a yield-stress law's paste starts give its yield stress [1]: a paste
 #: whose flow adds as much again as its yield stress, and a nearly plastic one. Over a factor 8 of shear rate a
 #: plastic's stress is nearly flat, and the half-yield start splits it into a yield stress and a low index, far from
-#: a plastic's τ_y and n = 1; on readings of a Bingham plastic the nearly plastic start reads closer
-#: (``test_paste_screen_starts_a_plastic_fluid_near_its_yield_stress``). Each start costs one simulation; the best
-#: of them, stress-scaled, is fitted (``screened_starts``).
+#: a plastic's τ_y and n = 1; on readings of a Bingham plastic the nearly plastic start reads closer. Each start
+#: costs one simulation; the best of them, stress-scaled, is fitted (``screened_starts``).
 PASTE_SHARES = (0.5, 0.9)
 
 #: The yield stress of the start taken from the best liquid fit, as a share of its stress at the lowest speed [1]:

@@ -8,8 +8,8 @@ viscosity η_N (γ̇_eff / (U/a))^(n-1); the pair measures d ln F / dn at n = 1,
 flow of the Newtonian fluid η_N weighted by each region's share of the reading's sensitivity to viscosity: the
 shear rate at which the stir measures a viscosity. Metzner and Otto's constant assumes γ̇_eff does not depend on n;
 in a stirred cup it does, because part of the fluid barely shears (rigid swirl, corners), where a strongly thinning
-power law's viscosity diverges. The earlier single probe at n = 0.5 gave 1.2 1/s on the bundled example, whose
-Carreau truth reads like a Newtonian fluid at the viscosity it has at 4.4 1/s; the n = 1 ± 0.15 pair gives 4.2 1/s.
+power law's viscosity diverges, so a single probe far from n = 1 weighs those regions too much; the pair
+n = 1 ± 0.15 measures the slope where every fluid the fit starts from lies.
 
 The Newtonian-equivalent viscosity itself is read off a ladder of Newtonian simulations one decade apart
 (``ViscosityLadder``): the tabulated estimate the Gauss-Newton fit starts from, and the preliminary estimate the

@@ -107,7 +107,7 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
     def log_m(x: float) -> float:
         if x not in points:
             simulated = float(np.mean(expected_magnitude(readings(np.array([x]))[train], noise)))
-            points[x] = math.log(simulated) if simulated > 0 else math.nan  # NaN: the simulation blew up
+            points[x] = math.log(simulated) if simulated > 0 else math.nan  # NaN: the simulation diverged
         return points[x]
 
     x_hat, found = _solve(log_m, target, math.log(start), FIRST_STEP, bounds, points)
@@ -138,7 +138,7 @@ def _solve(log_m, target: float, x0: float, step: float, bounds: tuple[float, fl
     for _ in range(MAX_STEPS + 1):
         y = log_m(x)
         if not math.isfinite(y):
-            break  # the simulation blew up (``optimise.Readings``): no further that way
+            break  # the simulation diverged (``optimise.Readings``): no further that way
         if abs(y - target) < TOLERANCE:
             return x, True
         tried.append(x)
@@ -157,7 +157,7 @@ def _solve(log_m, target: float, x0: float, step: float, bounds: tuple[float, fl
 
 def _slope_at(points: dict[float, float], x: float) -> float:
     """d ln M / d ln η at ``x`` from the simulated ``points`` (ln η → ln M): the secant from the nearest to the
-    nearest of those at least ``MIN_SECANT`` from it (NaN without one); simulations that blew up are left out."""
+    nearest of those at least ``MIN_SECANT`` from it (NaN without one); simulations that diverged are left out."""
     ordered = sorted((p for p in points if math.isfinite(points[p])), key=lambda p: abs(p - x))
     apart = [p for p in ordered[1:] if abs(p - ordered[0]) >= MIN_SECANT] if ordered else []
     return (points[apart[0]] - points[ordered[0]]) / (apart[0] - ordered[0]) if apart else math.nan

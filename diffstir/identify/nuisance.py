@@ -16,13 +16,10 @@ the Laplace covariance on it is θ's marginal covariance with the nuisances free
 nuisances minimise least squares while θ minimises the fit's robust cost; the two agree where the residuals are
 within the robust scale, which is what that scale is chosen for (``optimise.residual_scale``).
 
-Neither is fitted by default (docs/accuracy.md measures both ways). The lag puts the right law first on the
-virtual lab's non-Newtonian fluids and their viscosities within 2 %, but where the model's own error is left (the
-fitting grid's gap to the truth at Re ≈ 25) it trades against it: a 0.2 Pa·s Newtonian fluid read −15 % instead of
-−2 %, and with the lag's autocorrelated residual gone the Laplace intervals no longer cover that error. A free
-offset absorbs model error even more readily: on the lab's ketchup it took −29 mN where the sensor's was +2 mN,
-and the Newtonian law won with a viscosity 20 % high. The dry-run subtraction bounds a real offset by about the
-resolution.
+Neither is fitted by default (docs/accuracy.md measures both ways): where the simulator's own force error is
+left (thin fluids, Re ≈ 25), a free lag or offset absorbs part of it into a wrong sensor setting, moves the
+viscosity further and, with the residual whitened, narrows the intervals that should hold that error. The dry-run
+subtraction bounds a real offset by about the resolution.
 
 L_τ is the sensor's response of ``recording.first_order_response``, exact for p linear between samples
 (first-order hold) on any increasing sample times. A recording whose sensor block states a ``time_constant``

@@ -122,7 +122,7 @@ class Readings:
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """Forward differences d readings / d θ, (M, k); steps point inwards at an upper bound, and backwards where
-        the forward step's simulation blew up."""
+        the forward step's simulation diverged."""
         theta = np.asarray(theta, dtype=np.float64)
         base = self(theta)
         columns = []
@@ -228,8 +228,7 @@ def fit_model(problem: FitProblem, model: FitModel, *, max_iterations: int = 6, 
     if model.name == "newtonian":  # above the simulator's viscosity cap [Pa·s] the reading stops responding to η
         model.upper[0] = min(model.upper[0], math.log(cfg.viscosity_cap))
     elif model.name == "corotated":  # its apparent viscosity μ Δt must keep the fixed step stable: the viscous
-        # number 2 d μ Δt² / (ρ Δx²) within what the acoustic number c Δt / Δx leaves of 1 (a trial step at
-        # μ = 1860 Pa, Δt = 1.79 ms, Δx = 5 mm, c = 1 m/s blew up; this bound is 1300 Pa there)
+        # number 2 d μ Δt² / (ρ Δx²) within what the acoustic number c Δt / Δx leaves of 1
         room = max(1.0 - cfg.fixed_sound_speed * model.dt / cfg.dx, 0.0)
         mu_max = cfg.viscous_safety * room * problem.density * cfg.dx ** 2 / (2 * cfg.dim * model.dt ** 2)
         model.upper[0] = min(model.upper[0], math.log(max(mu_max, 1e-12)))

@@ -26,8 +26,8 @@ class SimConfig:
             dynamic pressure ρ U² and the viscous pressure of a rod dragged at the cup's centre (its Stokes drag
             per unit length over its diameter, 2π η U / (a [ln(b/a) − (b² − a²)/(b² + a²)])) at the trajectory's
             top speed U and the law's viscosity at the shear rate U/a. A viscous stir's pressure, not its Mach
-            number, is what compresses the fluid: at the former 1 m/s a 1 Pa·s stir at 0.1 m/s compressed it by
-            13 % and read 27 % low against an incompressible reference (docs/validation.md).
+            number, is what compresses the fluid: at 1 m/s a 1 Pa·s stir at 0.1 m/s compresses it by 13 % and reads
+            27 % low against an incompressible reference (docs/validation.md).
         rollout_sound_speed: the sound speed of every rollout [m/s], held fixed in place of the ``compressibility``
             rule (a fit holds the one its starting law gets: ``identify.StirProblem.frozen``), or None. The fluid
             settles at ``sound_speed`` either way, so that a rollout at a held sound speed starts from the state the
@@ -174,9 +174,9 @@ class SimConfig:
         return {k: getattr(self, k) for k in NUMERICS}
 
 
-#: The settings of ``SimConfig.numerics``; records written before 2026-11-24 lack the last four (before 2026-11-25
-#: the last), and had then the values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound
-#: speed, no boundary particles).
+#: The settings of ``SimConfig.numerics``. A record that lacks some of the last five was made by numerics that
+#: had then the values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound speed, no
+#: boundary particles).
 NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure",
             "wall_pressure")
 FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible",
