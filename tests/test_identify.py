@@ -473,6 +473,16 @@ def test_resume_does_not_refit_finished_models(newtonian_identification, newtoni
                                           "\\(max_iterations\\); use another out= or overwrite=true"):
         identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
                  holdout_fraction=0.25, max_iterations=3, progress=False, checkpoint=out / "checkpoint.json")
+    # a changed step changes every force: fits made with the other step are not resumed
+    with pytest.raises(OutputError, match="other settings \\(dt_max\\)"):
+        identify(newtonian_recording, ["newtonian", "power_law"], config=FAST.replace(dt_max=FAST.dt_max / 2),
+                 density=1000.0, window=None, holdout_fraction=0.25, max_iterations=5, progress=False,
+                 checkpoint=out / "checkpoint.json")
+    # where it runs does not: the same fits are resumed
+    identify(newtonian_recording, ["newtonian", "power_law"], config=FAST.replace(checkpoint_every=7),
+             density=1000.0, window=None, holdout_fraction=0.25, max_iterations=5, progress=False,
+             checkpoint=out / "checkpoint.json")
+    assert calls == []
 
 
 def test_a_checkpoint_of_another_recording_is_refused_unless_overwritten(newtonian_identification,

@@ -193,11 +193,11 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     sensor = SensorNuisance(tuple(sensor_nuisance))
     settings = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
                 "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
-                "max_iterations": max_iterations, **config.numerics(), "density": density_report["value"],
+                "max_iterations": max_iterations, **config.force_settings(), "density": density_report["value"],
                 "slice_correction": (slice_correction_table()["coefficients"] if config.dim == 2 and slice_correction
                                      else None),
                 "shear_rate_probes": PROBE_INDEX_STEP,
-                "coarse": None if coarse is None else {**coarse.numerics(), "fine_iterations": fine_iterations}}
+                "coarse": None if coarse is None else {**coarse.force_settings(), "fine_iterations": fine_iterations}}
     state = _load_checkpoint(checkpoint, settings, recording_label(recording), overwrite)
 
     def save() -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Literal
 
 import torch
@@ -168,11 +168,20 @@ class SimConfig:
         """A copy with ``changes`` applied."""
         return replace(self, **changes)
 
+    def force_settings(self) -> dict:
+        """Every setting a simulated force depends on: all but where and how it runs (``device``, ``kernels``,
+        ``compile``, ``checkpoint_every``, which change it by rounding at most). A fit's checkpoint holds them, so
+        that a changed step or cap is not resumed from fits made without it."""
+        return {k: v for k, v in asdict(self).items() if k not in RUN_SETTINGS}
+
     def numerics(self) -> dict:
         """What a simulated force depends on besides the fluid and the stir, for records that must say which
         simulator made them (a rectifier's training pairs, an identification's preliminary estimate)."""
         return {k: getattr(self, k) for k in NUMERICS}
 
+
+#: Settings that say where and how a simulation runs, not what it computes (``SimConfig.force_settings``).
+RUN_SETTINGS = ("device", "kernels", "compile", "checkpoint_every")
 
 #: The settings of ``SimConfig.numerics``. A record that lacks some of the last five was made by numerics that
 #: had then the values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound speed, no
