@@ -55,11 +55,16 @@ def build(node, where: str) -> int:
                 cls = getattr(importlib.import_module(module), name)
                 settings = {k: v for k, v in OmegaConf.to_container(node, resolve=True).items()
                             if not (k.startswith("_") and k.endswith("_"))}  # Hydra's own keys
-                inspect.signature(cls).bind(**settings)
+                try:
+                    inspect.signature(cls).bind(**settings)
+                except TypeError as error:
+                    raise AssertionError(f"{where}: {target}: {error}") from error
                 return 1 + sum(build(value, f"{where}.{key}") for key, value in node.items_ex(resolve=False)
                                if key != "_target_")
-            else:
+            try:
                 instantiate(node)
+            except Exception as error:
+                raise AssertionError(f"{where}: {target}: {error}") from error
             return 1
         return sum(build(value, f"{where}.{key}") for key, value in node.items_ex(resolve=False))
     if isinstance(node, ListConfig):
