@@ -201,13 +201,17 @@ def stir_run(config: SimConfig, viscosity: float, reference: dict, simulated_vis
     deviation = np.sqrt(np.mean((np.interp(t_ref[window], t, radial_s) - reference["radial"][window]) ** 2
                                 + (np.interp(t_ref[window], t, along_s) - reference["tangential"][window]) ** 2))
     noise = np.sqrt(np.mean((along - along_s)[width:-width] ** 2 + (radial - radial_s)[width:-width] ** 2))
-    x, v = result.state.x.double(), result.state.v.double()
-    spin = float(sim.scene.particle_mass * (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0]).sum())
     return {"drag": -np.interp(t_ref[late], t, along_s).mean(), "drag_ref": -reference["tangential"][late].mean(),
             "radial": np.interp(t_ref[late], t, radial_s).mean(), "radial_ref": reference["radial"][late].mean(),
             "deviation": deviation / scale, "noise": noise / scale, "steps": len(t),
             "sound": f"{sim.sound_speed(trajectory):.2f}" if config.pressure == "compressible" else "none",
-            "spin": spin / reference["angular_momentum"][-1]}
+            "spin": angular_momentum(sim, result.state) / reference["angular_momentum"][-1]}
+
+
+def angular_momentum(sim: StirringSimulator, state) -> float:
+    """The 2-D fluid's angular momentum about the cup's axis, Σ m (x v_y − y v_x) [kg m²/s per m of rod]."""
+    x, v = state.x.double(), state.v.double()
+    return float(sim.scene.particle_mass * (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0]).sum())
 
 
 def stir_row(config: SimConfig, label: str, viscosity: float, reference: dict) -> str:
@@ -267,8 +271,7 @@ def stir_history(directory: Path, viscosity: float = 1.0) -> None:
                            / (math.pi * ((A + hi * config.dx) ** 2 - (A + lo * config.dx) ** 2) * per_area)
                            for lo, hi in ((0.0, 0.5), (0.5, 1.0))])
         shells = np.array(shells)
-        x, v = result.state.x.double(), result.state.v.double()
-        spin_up.append((label, float(sim.scene.particle_mass * (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0]).sum())))
+        spin_up.append((label, angular_momentum(sim, result.state)))
         for lo, hi in windows:
             m, mr, ms = ((x > lo) & (x <= hi) for x in (t, reference["times"], shot_times))
             drag, drag_ref = -along[m].mean(), -reference["tangential"][mr].mean()
