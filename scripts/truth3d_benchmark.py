@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import os
 import platform
 import sys
@@ -42,6 +43,8 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import yaml
+
+from diffstir.identify.uncertainty import MAX_FACTOR
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -137,6 +140,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
                           max_iterations=fit_cfg["max_iterations"], fine_iterations=fit_cfg["fine_iterations"],
                           optimizer=fit_cfg["optimizer"], selection=fit_cfg["selection"],
                           sensor_nuisance=tuple(fit_cfg["sensor_nuisance"]), model_error=fit_cfg["model_error"],
+                          inertial_error=fit_cfg["inertial_error"],
                           slice_correction=corrected, size_estimate=False, progress=False)
         summary = result.summary()
         fitted = summary["laws"][law["name"]]
@@ -245,21 +249,30 @@ def _verdict(fit: dict) -> str:
     return "yes" if fit["covered"] else "no"
 
 
+def _estimate(fit: dict) -> str:
+    """The fitted apparent viscosity [Pa·s] with its 95 % interval; "open" where the interval spans more than the
+    factor ``MAX_FACTOR`` either way that makes a log-scaled value identifiable (it then says nothing)."""
+    eta, (lo, hi) = fit["eta"], fit["eta_ci95"]
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo > 0 and hi <= MAX_FACTOR * eta and eta <= MAX_FACTOR * lo):
+        return f"{eta:.4g} [open]"
+    return f"{eta:.4g} [{lo:.4g}, {hi:.4g}]"
+
+
 def table(rows: list[dict]) -> str:
-    """The markdown table of ``rows``: per case the corrected fit and the slice-only one."""
-    lines = ["| rig | fluid | γ̇_eff [1/s] | η true [Pa·s] | η fitted [95 % CI] (corrected) | error | holds | C | "
-             "η slice-only [95 % CI] | error | holds | n error (corrected / slice-only) | truth [s] | fits [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    """The markdown table of ``rows``: per case the corrected fit and the slice-only one, and the reading's viscous
+    share e of the corrected fit (the report's ``resolvable.viscous_share``)."""
+    lines = ["| rig | fluid | γ̇_eff [1/s] | e | η true [Pa·s] | η fitted [95 % CI] (corrected) | error | holds | "
+             "C | η slice-only [95 % CI] | error | holds | n error (corrected / slice-only) | truth [s] | fits [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: CASES.index(r["case"]) if r["case"] in CASES else len(CASES)):
         c, s = r["corrected"], r["slice_only"]
         n = (f"{c['n_error']:+.3f} / {s['n_error']:+.3f}" if "n_error" in c else "-")
         factor = c["slice_correction"]["factor"] if c["slice_correction"] else float("nan")
+        share = f"{c['viscous_share']:.2f}" if c.get("viscous_share") is not None else "-"
         lines.append(
-            f"| {r['rig']} | {r['fluid']} | {c['effective_shear_rate']:.3g} | {c['eta_true']:.4g} | "
-            f"{c['eta']:.4g} [{c['eta_ci95'][0]:.4g}, {c['eta_ci95'][1]:.4g}] | {100 * c['error']:+.1f} % | "
-            f"{_verdict(c)} | {factor:.3f} | "
-            f"{s['eta']:.4g} [{s['eta_ci95'][0]:.4g}, {s['eta_ci95'][1]:.4g}] | {100 * s['error']:+.1f} % | "
-            f"{_verdict(s)} | {n} | {r['truth_seconds']:.0f} | "
+            f"| {r['rig']} | {r['fluid']} | {c['effective_shear_rate']:.3g} | {share} | {c['eta_true']:.4g} | "
+            f"{_estimate(c)} | {100 * c['error']:+.1f} % | {_verdict(c)} | {factor:.3f} | "
+            f"{_estimate(s)} | {100 * s['error']:+.1f} % | {_verdict(s)} | {n} | {r['truth_seconds']:.0f} | "
             f"{c['seconds']:.0f} + {s['seconds']:.0f} |")
     if rows:
         counts = {k: [_verdict(r[k]) for r in rows] for k in ("corrected", "slice_only")}

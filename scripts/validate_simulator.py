@@ -2,7 +2,8 @@
 
     python scripts/validate_simulator.py [--checks couette power_law translate buoyancy2d convergence rest3d stir
                                                    stir_convergence stir_sound_speed stir_history
-                                                   stir_drift stir_timestep numerical_viscosity]
+                                                   stir_drift stir_timestep inertial_error
+                                                   numerical_viscosity]
         [--rest-time 8] [--reference-dir DIR] [--numerics LABEL ...] [--set KEY=VALUE ...]
 
 Every 2-D check runs the fit's fine stage (conf/sim/slice2d.yaml: 2.5 mm cells, an incompressible pressure,
@@ -48,6 +49,13 @@ SimConfig fields on each of them (e.g. dt_max=0.004 for a longer step).
   1.67 mm cells, and simulated at η − ρ ν_num at 1 and 0.5 ms; at 0.05, 1 and 3 Pa s at 4, 2 and 1 ms. The drag,
   the radial force and the fluid's angular momentum against the reference's (not run by default; 0.05 Pa s's
   reference takes a few minutes).
+- inertial_error: how far the fine stage's force is off in the part that does not scale with the viscosity, the
+  stir's inertial part, at 0.05, 0.1 and 0.2 Pa s (Re = 50, 25, 12.5), the step the config gives. The reference's
+  force F(t) = V(t) + I(t) with its viscous part V = dF / d ln η (from the reference at 1.1 η) and its inertial part
+  I = F − V; the simulated force's deviation D = F_sim − F: drag and radial force from 0.9 s (D / I per component),
+  and the rms of |D| over the rms of |I| from 0.3 s, both components together (all of D counted against I, the
+  viscous part's own error included). The rms of the last over the three viscosities is the inertial force error
+  σ_i of diffstir.identify.uncertainty.INERTIAL_FORCE_ERROR (not run by default; the references take minutes).
 - stir_history: the stir at 1 Pa s (compressible, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
   time windows: the drag and radial force against the reference's, and the particles next to the rod (within half
   a cell and from half a cell to one cell of its surface, per area, over the resting fluid's), and the fluid's
@@ -87,6 +95,7 @@ from diffstir.trajectory import circle, spin, stationary, translate  # noqa: E40
 
 RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius
+STIR_SPEED = 0.1  # m/s, the paper's stir on a 15 mm circle
 COMPRESSIBLE = fitting_default().replace(pressure="compressible")
 FORMER = COMPRESSIBLE.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
 PROJECTION = fitting_default()
@@ -183,9 +192,10 @@ def stir_reference(viscosity: float, directory: Path, duration: float = 1.5) -> 
 def stir_run(config: SimConfig, viscosity: float, reference: dict, simulated_viscosity: float | None = None) -> dict:
     """The paper's stir at ``viscosity`` [Pa s] (simulated with ``simulated_viscosity`` where given) against the
     ``reference``: drag and radial force [N/m] from 0.9 s and the reference's, the rms deviation and noise over the
-    reference's rms force [1], the steps, the sound speed and the fluid's angular momentum about the cup's axis at
-    the end over the reference's [1]."""
-    trajectory = circle(radius=0.015, speed=0.1, duration=1.5)
+    reference's rms force [1], the steps, the sound speed, the fluid's angular momentum about the cup's axis at
+    the end over the reference's [1], and the smoothed radial and along-motion force [N/m] at the steps' times
+    [s]."""
+    trajectory = circle(radius=0.015, speed=STIR_SPEED, duration=1.5)
     sim = StirringSimulator(Newtonian(eta=simulated_viscosity or viscosity), RIG, config, density=1000.0)
     with torch.no_grad():
         result = sim(trajectory)
@@ -205,7 +215,8 @@ def stir_run(config: SimConfig, viscosity: float, reference: dict, simulated_vis
             "radial": np.interp(t_ref[late], t, radial_s).mean(), "radial_ref": reference["radial"][late].mean(),
             "deviation": deviation / scale, "noise": noise / scale, "steps": len(t),
             "sound": f"{sim.sound_speed(trajectory):.2f}" if config.pressure == "compressible" else "none",
-            "spin": angular_momentum(sim, result.state) / reference["angular_momentum"][-1]}
+            "spin": angular_momentum(sim, result.state) / reference["angular_momentum"][-1],
+            "times": t, "radial_history": radial_s, "along_history": along_s}
 
 
 def angular_momentum(sim: StirringSimulator, state) -> float:
@@ -247,9 +258,42 @@ def stir_timestep(directory: Path, density: float = 1000.0) -> None:
               f"{r['radial']:+.4f} | {r['radial_ref']:+.4f} | {r['spin']:.3f} |", flush=True)
 
 
+def inertial_error(directory: Path, config: SimConfig, viscosities: tuple[float, ...] = (0.05, 0.1, 0.2),
+                   step: float = 1.1) -> None:
+    """The simulated stir's deviation from the reference against the reference's inertial part I = F − dF/d ln η
+    (the derivative from the reference at ``step`` × η), per viscosity [Pa s] (the module docstring)."""
+    print("\n| η [Pa·s] | Re | component | reference [N/m] | viscous part dF/d ln η | inertial part | simulated | "
+          "deviation / inertial part |\n|---|---|---|---|---|---|---|---|")
+    ratios = []
+    for viscosity in viscosities:
+        reference, raised = stir_reference(viscosity, directory), stir_reference(step * viscosity, directory)
+        r, reynolds = stir_run(config, viscosity, reference), 1000.0 * STIR_SPEED * 2 * A / viscosity  # ρ U 2a / η
+        t_ref, t = reference["times"], r["times"]
+        if not np.allclose(raised["times"], t_ref):
+            raise RuntimeError(f"the references at {viscosity:g} and {step * viscosity:g} Pa s have other times")
+        forces = {name: np.stack([reference[name], raised[name]]) for name in ("radial", "tangential")}
+        viscous = {name: (f[1] - f[0]) / math.log(step) for name, f in forces.items()}
+        inertial = {name: forces[name][0] - viscous[name] for name in forces}
+        simulated = {"radial": np.interp(t_ref, t, r["radial_history"]),
+                     "tangential": np.interp(t_ref, t, r["along_history"])}
+        late, window = t_ref > 0.9, (t_ref > 0.3) & (t_ref < 1.45)
+        for label, name, sign in (("drag", "tangential", -1.0), ("radial", "radial", 1.0)):
+            i_late = sign * inertial[name][late].mean()
+            deviation = sign * (simulated[name] - forces[name][0])[late].mean()
+            print(f"| {viscosity:g} | {reynolds:.1f} | {label} | "
+                  f"{sign * forces[name][0][late].mean():+.4f} | {sign * viscous[name][late].mean():+.4f} | "
+                  f"{i_late:+.4f} | {sign * simulated[name][late].mean():+.4f} | {deviation / i_late:+.3f} |")
+        deviation = np.hypot(*(simulated[n] - forces[n][0] for n in forces))[window]
+        ratio = math.sqrt(np.mean(deviation**2) / np.mean(np.hypot(*inertial.values())[window] ** 2))
+        ratios.append(ratio)
+        print(f"| {viscosity:g} | | rms over 0.3-1.45 s, both | | | | | {ratio:.3f} |", flush=True)
+    listed = ", ".join(f"{v:g}" for v in viscosities)
+    print(f"\nσ_i, the rms over {listed} Pa s: {math.sqrt(np.mean(np.square(ratios))):.3f}")
+
+
 def stir_history(directory: Path, viscosity: float = 1.0) -> None:
     reference = stir_reference(viscosity, directory)
-    trajectory = circle(radius=0.015, speed=0.1, duration=1.5)
+    trajectory = circle(radius=0.015, speed=STIR_SPEED, duration=1.5)
     windows = ((0.1, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.2), (1.2, 1.5))  # s
     print("\n| numerics | window [s] | drag [N/m] | reference | ratio | radial [N/m] | reference | "
           "particles within dx/2 of the rod | dx/2 to dx |\n|---|---|---|---|---|---|---|---|---|")
@@ -288,7 +332,7 @@ def stir_drift(directory: Path, configs: dict[str, SimConfig], viscosity: float 
     """The stir held for ``duration`` [s]: the drag per second against the reference's, and how evenly the particles
     fill the cup (the rms of the nodes' fill φ − 1 and its least value, more than two cells inside the cup)."""
     reference = stir_reference(viscosity, directory, duration)
-    trajectory = circle(radius=0.015, speed=0.1, duration=duration)
+    trajectory = circle(radius=0.015, speed=STIR_SPEED, duration=duration)
     windows = [(lo, lo + 1.0) for lo in np.arange(0.0, duration, 1.0)]
     print(f"\n| numerics | {' | '.join(f'drag {lo:g}-{hi:g} s [N/m]' for lo, hi in windows)} | fill φ at "
           f"{duration:g} s: rms of φ − 1 | least φ |\n|{'---|' * (len(windows) + 3)}")
@@ -393,6 +437,8 @@ def main() -> None:
         stir_drift(args.reference_dir, pick(DRIFT_CONFIGS))
     if "stir_timestep" in args.checks:
         stir_timestep(args.reference_dir)
+    if "inertial_error" in args.checks:
+        inertial_error(args.reference_dir, PROJECTION.replace(**changes))
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ def assert_refused(done, app: str, message: str) -> None:
     (["fit.selection=holdout", "fit.holdout_fraction=0"], "fit.selection = 'holdout' needs held-out samples"),
     (["rectifier.checkpoint=missing.ckpt"], "rectifier.checkpoint = missing.ckpt: no such file"),
     (["fit.model_error=-0.1"], "fit.model_error = -0.1; expected a relative force error in [0, 1)"),
+    (["fit.inertial_error=1.5"], "fit.inertial_error = 1.5; expected a relative force error in [0, 1)"),
     (["fit.max_iterations=0"], "fit.max_iterations = 0; expected at least 1"),
     (["fit.slice_correction=maybe"], "fit.slice_correction = 'maybe'; expected true or false"),
     (["threads=0"], "threads = 0; expected at least 1"),

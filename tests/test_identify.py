@@ -292,6 +292,42 @@ def test_a_relative_force_error_moves_log_parameters_together():
         bare.covariance.tolist()
 
 
+def test_an_inertial_force_error_moves_ln_eta_by_the_inertial_over_the_viscous_share():
+    # a Newtonian reading p = v + i, v = dp/d ln η its viscous part. With i = c v (one waveform) the viscous share is
+    # e = 1 / (1 + c): an error ε of the whole force moves ln η by ε (1 + c) = ε / e, an error ε_i of the inertial
+    # part by ε_i c = ε_i (1 − e) / e
+    t = np.linspace(0.0, 2.0, 400)
+    v, c = 0.01 * (1.0 - np.exp(-t / 0.2)), 3.0
+    model = FitModel.named("newtonian", eta=0.1)
+    jacobian, residuals = v[:, None], np.random.default_rng(5).normal(0.0, 1e-4, t.size)
+    bare = laplace(model, model.theta(), jacobian, residuals)
+    viscous = jacobian @ model.stress_direction()
+    both = laplace(model, model.theta(), jacobian, residuals, v * (1.0 + c), model_error=0.03,
+                   viscous_readings=viscous, inertial_error=0.2)
+    assert both.covariance[0, 0] - bare.covariance[0, 0] == pytest.approx(0.03**2 * (1 + c) ** 2 + 0.2**2 * c**2,
+                                                                          rel=1e-9)
+    # a viscous reading (Stokes flow, p = v) is not widened by the inertial error
+    stokes = laplace(model, model.theta(), jacobian, residuals, v, model_error=0.03, viscous_readings=viscous,
+                     inertial_error=0.2)
+    assert stokes.covariance[0, 0] - bare.covariance[0, 0] == pytest.approx(0.03**2, rel=1e-9)
+    # nor by an inertial force the fit tells apart from the viscous one: a waveform orthogonal to v
+    other = np.sin(2.0 * np.pi * t / 0.5)
+    other -= (other @ v) / (v @ v) * v
+    apart = laplace(model, model.theta(), jacobian, residuals, v + other, model_error=0.0, viscous_readings=viscous,
+                    inertial_error=0.2)
+    assert apart.covariance[0, 0] == pytest.approx(bare.covariance[0, 0], rel=1e-9)
+    with pytest.raises(ValueError, match="viscous part"):
+        laplace(model, model.theta(), jacobian, residuals, v, inertial_error=0.2)
+
+
+def test_the_stress_direction_holds_the_stress_scales_only():
+    carreau = FitModel.named("carreau", eta0=1.0, eta_inf=0.01, lam=0.5, n=0.6)
+    assert dict(zip(carreau.names, carreau.stress_direction())) == {"eta0": 1.0, "eta_inf": 1.0, "lam": 0.0,
+                                                                     "n": 0.0}
+    hb = FitModel.named("herschel_bulkley", tau_y=3.0, k=0.5, n=0.7)
+    assert dict(zip(hb.names, hb.stress_direction())) == {"tau_y": 1.0, "k": 1.0, "n": 0.0}
+
+
 def test_a_force_error_of_each_speed_window_moves_a_power_laws_index():
     # a power law read at six shear rates g_w, m samples each: p = k g_w^n, θ = (ln k, n), J = [p, p ln g_w]. An
     # error ε_w of window w's amplitude is a shift ε_w of ln p_w, so (ln k, n) move as a weighted regression of ε_w on
@@ -537,6 +573,13 @@ def test_report_files(newtonian_identification):
 
     plain = {**report, "slice_correction": None, "force_scale": "F' h (fit.slice_correction=false)"}
     assert "F = F' h (fit.slice_correction=false)" in markdown(plain)
+    # an inertia-dominated stir: the report says so and whether its intervals hold the inertial part's error
+    assert report["simulation"]["inertial_force_error"] == result.inertial_error > 0
+    thin = {**report, "resolvable": {**report["resolvable"], "inertia_dominated": True, "viscous_share": 0.25}}
+    line = next(line for line in markdown(thin).splitlines() if "inertia-dominated" in line)
+    assert "25 %" in line and f"{100 * result.inertial_error:.0f} % of the inertial part" in line
+    held = {**thin, "simulation": {**report["simulation"], "inertial_force_error": 0.0}}
+    assert "too narrow" in next(line for line in markdown(held).splitlines() if "inertia-dominated" in line)
 
 
 def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_identification):
@@ -607,7 +650,7 @@ def test_fit_app_writes_a_report(period_recordings, tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["diffstir-fit", f"recording={path}", f"out={out}", "model=[newtonian]",
                                       "baseline=false", "density=1000", "~coarse", "sim.dx=0.01",
                                       f"sim.pressure={FAST.pressure}", f"sim.sound_speed={FAST.sound_speed}",
-                                      "sim.compressibility=null",
+                                      "sim.compressibility=null", f"sim.dt_max={FAST.dt_max}",
                                       "fit.window=0.3", "fit.max_iterations=3", "fit.sensor_nuisance=[lag]",
                                       "progress=false"])
     main()

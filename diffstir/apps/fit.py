@@ -53,7 +53,7 @@ def main(cfg: DictConfig) -> None:
         optimizer=cfg.fit.optimizer, selection=cfg.fit.selection, checkpoint=out / "checkpoint.json",
         progress=cfg.progress, log_dir=out / "tensorboard", coarse=coarse, fine_iterations=cfg.fit.fine_iterations,
         sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
-        slice_correction=bool(cfg.fit.slice_correction),
+        inertial_error=cfg.fit.inertial_error, slice_correction=bool(cfg.fit.slice_correction),
         workers=config_workers(cfg), overwrite=bool(cfg.overwrite),
     )
     if rectifier is not None:
@@ -77,6 +77,7 @@ def check_fit_settings(cfg: DictConfig) -> None:
     check_at_least("fit.max_iterations", cfg.fit.max_iterations, 1)
     check_at_least("fit.fine_iterations", cfg.fit.fine_iterations, 0)
     checked_model_error(cfg.fit.model_error, "fit.model_error")
+    checked_model_error(cfg.fit.inertial_error, "fit.inertial_error")
     if not isinstance(cfg.fit.slice_correction, bool):
         raise ConfigError(f"fit.slice_correction = {cfg.fit.slice_correction!r}; expected true or false")
     if cfg.fit.sensor_nuisance and cfg.fit.optimizer != "lm":

@@ -100,13 +100,16 @@ class FitModel:
         clipped into its bounds; times and indices unchanged."""
         if not factor > 0:
             raise ValueError(f"a stress scale factor must be > 0, got {factor!r}")
-        theta = self.theta()
-        for i, name in enumerate(self.names):
-            if self.units[name] in STRESS_UNITS:  # log-scaled: θ = ln value
-                theta[i] += math.log(factor)
         scaled = self.copy()
-        scaled.set_theta(theta)
+        scaled.set_theta(self.theta() + math.log(factor) * self.stress_direction())
         return scaled
+
+    def stress_direction(self) -> np.ndarray:
+        """The direction s in θ along which the stress at every shear rate scales, (k,): θ + c s multiplies it by
+        exp(c) (``stress_scaled``); 1 for each parameter in a unit of stress (log-scaled: θ = ln value), 0 for
+        times and indices. d readings / dθ · s is the readings' viscous part, the force that scales with the
+        fluid's stress."""
+        return np.array([1.0 if self.units[name] in STRESS_UNITS else 0.0 for name in self.names])
 
     def si_of_theta(self, theta: np.ndarray) -> np.ndarray:
         """SI values of θ (element-wise, no clipping: interval ends may lie outside the bounds)."""

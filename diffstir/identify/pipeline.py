@@ -43,8 +43,8 @@ from .problem import StirProblem, Windows
 from .progress import Progress, fit_simulations
 from .selection import bic, select
 from .stages import SECANT_STEPS, Plan, Stage
-from .uncertainty import (MODEL_FORCE_ERROR, Uncertainty, checked_model_error, force_error, laplace,
-                          log_viscosity_interval)
+from .uncertainty import (INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Uncertainty, checked_model_error, force_error,
+                          laplace, log_viscosity_interval)
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
@@ -64,6 +64,7 @@ class Identification:
     seconds: float
     preliminary: dict
     model_error: float = 0.0
+    inertial_error: float = 0.0
     refined: dict | None = None
     magnitude: dict | None = None
 
@@ -117,7 +118,8 @@ class Identification:
             "slice_correction": laws[self.selection["selected"]]["slice_correction"],
             "force_scale": ("3-D force" if self.problem.config.dim != 2 else
                             "F' h C" if self.problem.corrected else "F' h (fit.slice_correction=false)"),
-            "simulation": {**self.problem.config.numerics(), "force_error": self.model_error},
+            "simulation": {**self.problem.config.numerics(), "force_error": self.model_error,
+                           "inertial_force_error": self.inertial_error},
             "seconds": self.seconds,
         }
 
@@ -146,8 +148,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
              coarse: SimConfig | None = None, fine_iterations: int = 3,
              sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR,
-             size_estimate: bool = True, slice_correction: bool = True, workers: int = 1,
-             overwrite: bool = False) -> Identification:
+             inertial_error: float = INERTIAL_FORCE_ERROR, size_estimate: bool = True, slice_correction: bool = True,
+             workers: int = 1, overwrite: bool = False) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
@@ -172,6 +174,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             none).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, added to every interval
             (``uncertainty``; 0: the intervals hold the noise only).
+        inertial_error: the relative 1-σ error σ_i of the part of ``config``'s simulated force that does not scale
+            with the fluid's stress (its inertial part), added to every interval (``uncertainty``).
         size_estimate: also estimate the Newtonian viscosity from the size of the reading (``magnitude``), beside
             the fits; a caller that reads only the fits (the diagnosis) saves its simulations with False.
         slice_correction: a 2-D fit reads F'_2D h C, C the slice's correction for the recording's rig (False:
@@ -180,6 +184,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         overwrite: start afresh, replacing a checkpoint of another recording or of other settings.
     """
     checked_model_error(model_error, "fit.model_error")
+    checked_model_error(inertial_error, "fit.inertial_error")
     unknown = sorted(set(models) - set(LAWS))
     if unknown:  # before minutes of fitting, not when their turn comes
         raise ValueError(f"model = {unknown}: unknown laws; choose from {sorted(LAWS)} (the corotated baseline is "
@@ -291,7 +296,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     uncertainty = {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
                                                                         problem.times, fit.sensor, train),
                                  residuals[name], fit.simulated_readings[train],
-                                 force_error(model_error, problem.slice_correction(fit.model.material)))
+                                 force_error(model_error, problem.slice_correction(fit.model.material)),
+                                 viscous_readings=fit.jacobian[train] @ fit.model.stress_direction(),
+                                 inertial_error=inertial_error)
                    for name, fit in fits.items()}
     # one sample count for every model, or BIC would compare likelihoods of different data: that of the
     # best-fitting model, whose residuals are the closest to the noise
@@ -306,6 +313,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
                           selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
+                          inertial_error=inertial_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
                           magnitude=state.get("magnitude"))
 
@@ -366,8 +374,8 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
     reading's noise level (and the sensor's resolution); and the drag's viscous share e = d ln F / d ln η [1], the
     least-squares slope (J·p)/(p·p) of the Newtonian fit's Jacobian J = d p / d ln η on its readings p. A drag
     F = F_v + F_i with F_v ∝ η has e = F_v / F; below ``VISCOUS_SHARE_FLOOR`` the stir is inertia-dominated: a
-    relative error ε of the simulated drag moves ln η by about ε / e, while ``uncertainty.laplace`` holds the
-    simulator's error σ_m as a scale of the whole force, which moves ln η by only (J·p)/(J·J) σ_m."""
+    relative error ε_i of the simulated inertial part moves ln η by about ε_i (1 − e) / e, which
+    ``uncertainty.laplace`` holds (``inertial_error``)."""
     jacobian, readings = newtonian.jacobian[problem.train, 0], newtonian.simulated_readings[problem.train]
     change = float(np.sqrt(np.mean((jacobian * math.log(2.0)) ** 2)))
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)

@@ -69,12 +69,15 @@ def markdown(summary: dict) -> str:
                      f"{summary['resolvable']['reading_change_per_doubling']:.3g} N rms, below the noise "
                      f"({summary['resolvable']['noise']:.3g} N); the fitted numbers are not measurements")
     if summary["resolvable"].get("inertia_dominated"):
-        lines.append(f"- **inertia-dominated** stir: the part of the drag that scales with the viscosity is "
+        inertial = summary.get("simulation", {}).get("inertial_force_error", 0.0)
+        lines.append(f"- **inertia-dominated** stir: the part of the reading that scales with the viscosity is "
                      f"{100 * summary['resolvable']['viscous_share']:.0f} % of it, so a relative error of the "
-                     "simulated drag moves the viscosity by about that error over this share; the intervals hold the "
-                     "simulator's error as a scale of the whole force (fit.model_error), which the waveform tells "
-                     "apart from a change of viscosity, and are too narrow for such a stir; stir slower (a lower "
-                     "Reynolds number) to measure a thin fluid")
+                     "simulated force's inertial part moves the viscosity by about that error times the inertial "
+                     "over the viscous share; the intervals hold it "
+                     + (f"(fit.inertial_error, {100 * inertial:.0f} % of the inertial part) and are wide for that "
+                        "reason" if inertial > 0 else "not (fit.inertial_error = 0) and are too narrow for such a "
+                        "stir")
+                     + "; stir slower (a lower Reynolds number) to measure a thin fluid")
     magnitude = summary.get("magnitude")
     if magnitude is not None:
         lo, hi = magnitude["ci95"]

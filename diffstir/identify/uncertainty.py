@@ -1,18 +1,28 @@
 """Uncertainty of a fit: the Laplace (Gauss-Newton) covariance of θ, corrected for correlated residuals, plus the
 simulator's own error.
 
-cov(θ) = s² (JᵀJ)⁻¹ · N / N_eff + σ_m² Σ_w g_w g_wᵀ,   g_w = J⁺ p_w,
+cov(θ) = s² (JᵀJ)⁻¹ · N / N_eff + Σ_w (σ_m² g_w g_wᵀ + σ_i² h_w h_wᵀ),
+g_w = J⁺ p_w,   h_w = J⁺ (p_w − v_w),
 
 with J = d readings / d θ on the fitted samples, s² = RSS / (N - k), N_eff = N (1 - ρ) / (1 + ρ) the effective
 number of independent samples for residuals with lag-1 autocorrelation ρ (an AR(1) model: sensor lag, filtering and
 model error make neighbouring residuals alike, and treating them as independent would make the intervals far too
-narrow). The second term is the fitting simulator's discretisation error, taken as a common relative error ε of
-its force, ε ~ N(0, σ_m²): a reading p(1 + ε) moves the least-squares θ by ε J⁺ p. It does not shrink with more
-data and no residual shows it, because θ absorbs it (a grid that reads 3 % low returns a viscosity that much
-high); σ_m comes from the simulator's validation against closed forms (``MODEL_FORCE_ERROR``). Readings of several
-speed windows (``windows``) each get their own ε_w, independent between windows: p_w is p on window w's samples
-and zero elsewhere. One window (the default) is the common error; a law fitted to several speeds then also learns
-how the error's differences between speeds move its index.
+narrow). The sum is the fitting simulator's discretisation error, which does not shrink with more data and which no
+residual shows, because θ absorbs it. It has two parts:
+
+- a common relative error ε of the whole force, ε ~ N(0, σ_m²): a reading p(1 + ε) moves the least-squares θ by
+  ε J⁺ p (a grid that reads 3 % low returns a viscosity that much high); σ_m comes from the simulator's validation
+  against closed forms and the viscous stir (``MODEL_FORCE_ERROR``);
+- a relative error ε_i of the part of the force that does not scale with the fluid's stress, ε_i ~ N(0, σ_i²): the
+  reading is p = v + (p − v), with v = Σ_j dp/dθ_j over the parameters that carry the law's stress scale (a
+  viscosity, a consistency, a yield stress: ``FitModel.stress_direction``), the reading's viscous part; p − v is
+  what the fluid's momentum carries (inertia), which the 2-D slice gets less right than its viscous part
+  (``INERTIAL_FORCE_ERROR``). An error ε_i (p − v) moves θ by ε_i J⁺ (p − v). Where inertia carries most of the
+  force (a viscous share v / p of e), this moves ln η by about ε_i (1 − e) / e, and the interval widens with it.
+
+Readings of several speed windows (``windows``) each get their own ε_w and ε_i,w, independent between windows:
+p_w and v_w are p and v on window w's samples and zero elsewhere. One window (the default) is the common error; a
+law fitted to several speeds then also learns how the error's differences between speeds move its index.
 
 A parameter is identifiable when its 95 % interval is narrower than a factor ``MAX_FACTOR`` each way (log-scaled)
 or ``MAX_LINEAR_HALF_WIDTH`` (dimensionless indices) and it did not end on a bound: closer to it than both
@@ -37,13 +47,18 @@ MAX_LINEAR_HALF_WIDTH = 0.5  # a dimensionless index known to within ±0.5
 AT_BOUND = 1e-3              # of the θ range: closer than this to a bound counts as on it
 
 #: σ_m, the relative 1-σ error of the fine stage's force (``conf/sim/slice2d.yaml``: the 2-D slice, dx = 2.5 mm,
-#: incompressible): the paper's stir against the finite-element reference reads +4.3, −2.3 and −4.1 % at 0.2, 1
-#: and 3 Pa·s (rms 3.7 %) and the closed forms are within 3.6 % from 0.5 to 3 Pa·s (docs/validation.md).
+#: incompressible, a 2 ms step): the paper's stir against the finite-element reference reads +1.9, −3.0 and −3.9 %
+#: at 0.2, 1 and 3 Pa·s (rms 3.1 %) and the closed forms are within 4.1 % from 0.5 to 3 Pa·s (docs/validation.md).
 MODEL_FORCE_ERROR = 0.03
 #: σ_m of the coarse grid (``conf/sim/coarse2d.yaml``, dx = 5 mm, compressible): the rms of its closed forms'
 #: deficits, the Newtonian and power-law Couette torques 17 and 18 % low and the translating rod at 0.5 and 1 Pa·s
 #: 11 and 16 % low (docs/validation.md, Closed forms, under refinement).
 COARSE_FORCE_ERROR = 0.16
+#: σ_i, the relative 1-σ error of the fine stage's force in its part that does not scale with the fluid's stress
+#: (module docstring): the paper's stir against the finite-element reference at 0.05, 0.1 and 0.2 Pa·s (Re 50, 25,
+#: 12.5), the rms deviation of the force vector over the rms of the reference's inertial part, I = F − dF/d ln η,
+#: rms over the three (``python scripts/validate_simulator.py --checks inertial_error``, docs/validation.md).
+INERTIAL_FORCE_ERROR = 0.3
 
 
 def force_error(model_error: float, correction: SliceCorrection | None) -> float:
@@ -94,25 +109,34 @@ def effective_samples(residuals: np.ndarray) -> float:
 
 def laplace(model: FitModel, theta: np.ndarray, jacobian: np.ndarray, residuals: np.ndarray,
             readings: np.ndarray | None = None, model_error: float = 0.0,
-            windows: np.ndarray | None = None) -> Uncertainty:
+            windows: np.ndarray | None = None, viscous_readings: np.ndarray | None = None,
+            inertial_error: float = 0.0) -> Uncertainty:
     """The covariance at ``theta`` from the fitted samples' ``jacobian`` (N, k) and ``residuals`` (N,) [N], with
-    the simulator's relative force error ``model_error`` σ_m acting on its ``readings`` p (N,) [N], independently
-    in each window of samples (``windows``: each sample's window label, (N,); default one window) (module
-    docstring), and 95 % intervals, identifiability and bound flags."""
+    the simulator's relative force error ``model_error`` σ_m acting on its ``readings`` p (N,) [N] and its relative
+    error ``inertial_error`` σ_i acting on their part p − v that does not scale with the stress
+    (``viscous_readings`` v (N,) [N]), independently in each window of samples (``windows``: each sample's window
+    label, (N,); default one window) (module docstring), and 95 % intervals, identifiability and bound flags."""
     n, k = jacobian.shape
     n_eff = min(effective_samples(residuals), float(n))
     s2 = float(residuals @ residuals) / max(n - k, 1)
     u, singular, vt = np.linalg.svd(jacobian, full_matrices=False)
     seen = singular > singular.max(initial=0.0) * 1e-8 if singular.size else np.zeros(0, bool)
     covariance = (vt[seen].T / singular[seen] ** 2) @ vt[seen] * s2 * n / n_eff
-    if model_error > 0.0 and readings is not None:
-        labels = np.zeros(n, dtype=int) if windows is None else np.asarray(windows)
-        if labels.shape != (n,):
-            raise ValueError(f"windows: {labels.shape} labels for {n} samples; expected one per sample")
-        for label in np.unique(labels):
-            p = np.where(labels == label, readings, 0.0)
-            shift = vt[seen].T @ ((u[:, seen].T @ p) / singular[seen])  # J⁺ p_w: dθ per unit relative error
-            covariance = covariance + model_error**2 * np.outer(shift, shift)
+    errors = [(model_error, readings)]
+    if inertial_error > 0.0 and readings is not None:
+        if viscous_readings is None or np.shape(viscous_readings) != (n,):
+            raise ValueError(f"viscous_readings: expected the readings' viscous part, one per sample ({n}), with "
+                             "an inertial_error")
+        errors.append((inertial_error, readings - viscous_readings))
+    labels = np.zeros(n, dtype=int) if windows is None else np.asarray(windows)
+    if labels.shape != (n,):
+        raise ValueError(f"windows: {labels.shape} labels for {n} samples; expected one per sample")
+    for sigma, part in errors:
+        if sigma > 0.0 and part is not None:
+            for label in np.unique(labels):
+                p = np.where(labels == label, part, 0.0)
+                shift = vt[seen].T @ ((u[:, seen].T @ p) / singular[seen])  # J⁺ p_w: dθ per unit relative error
+                covariance = covariance + sigma**2 * np.outer(shift, shift)
     blind = np.any(np.abs(vt[~seen]) > 1e-6, axis=0) if (~seen).any() else np.zeros(k, bool)
     covariance[blind, :] = np.inf
     covariance[:, blind] = np.inf

@@ -115,8 +115,9 @@ class StirringSimulator(nn.Module):
 
     def time_step(self, trajectory: Trajectory) -> float:
         """The step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``; with a
-        projection the flow's limit cfl·dx/u_max) and ``dt_max`` (and the ``viscous_time_step`` where the shear
-        stress is not subcycled, ``substeps``), shortened so that it divides the trajectory's duration."""
+        projection the flow's limit cfl·dx/u_max), ``dt_max`` and the ``viscous_time_step`` times ``max_substeps``
+        (once where the shear stress is not subcycled, ``substeps``), shortened so that it divides the trajectory's
+        duration."""
         cfg = self.config
         if cfg.dt is not None:
             dt = cfg.dt
@@ -126,6 +127,8 @@ class StirringSimulator(nn.Module):
             dt = min(cfg.cfl * cfg.dx / max(signal, 1e-12), cfg.dt_max)
             if not self.subcycles:
                 dt = min(dt, self.viscous_time_step(trajectory))
+            elif cfg.max_substeps is not None:
+                dt = min(dt, cfg.max_substeps * self.viscous_time_step(trajectory))
         steps = max(1, math.ceil(trajectory.duration / dt * (1.0 - STEP_TOLERANCE)))
         return trajectory.duration / steps
 
