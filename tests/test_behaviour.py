@@ -301,6 +301,11 @@ def test_window_interval_carries_the_simulators_force_error():
         information = elasticity**2 * readings @ readings  # J·J [N²]
         assert noise_std == pytest.approx(math.sqrt(s2 * residuals.size / n_eff / information), rel=1e-9)
     assert with_baseline(readings, residuals, 0.0, 0.0, readings, 0.0)[2] == 0.0
+    # the inertial part p − J = (1 − e) p errs by σ_i: ln η moves by σ_i (1 − e) / e more, in quadrature
+    for elasticity in (0.1, 0.5, 1.0):
+        model_std = with_baseline(elasticity * readings, residuals, 0.0, 0.0, readings, 0.03, 0.3)[2]
+        assert model_std == pytest.approx(math.hypot(0.03 / elasticity, 0.3 * (1 - elasticity) / elasticity),
+                                          rel=1e-9)
 
 
 def test_classify_refuses_bad_points():

@@ -135,6 +135,7 @@ def behaviour(cfg: DictConfig) -> None:
     """``experiment=behaviour``: classify the fluid of ``recordings`` (docs/behaviour.md)."""
     b = cfg.behaviour
     checked_model_error(b.model_error, "behaviour.model_error")
+    checked_model_error(b.inertial_error, "behaviour.inertial_error")
     check_at_least("behaviour.iterations", b.iterations, 1)
     check_choices("behaviour.joint_models", list(b.joint_models), sorted(LAWS))
     check_choice("behaviour.slope_test", b.slope_test, SLOPE_TESTS)
@@ -151,7 +152,7 @@ def behaviour(cfg: DictConfig) -> None:
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, pause_speed=b.pause_speed,
                           replicates=b.replicates, seed=b.seed, model_error=b.model_error,
-                          slope_test=b.slope_test, workers=config_workers(cfg), progress=bool(cfg.progress))
+                          inertial_error=b.inertial_error, slope_test=b.slope_test, workers=config_workers(cfg), progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     b = result.summary()["behaviour"]

@@ -13,11 +13,13 @@ on the fit's Jacobian J and residuals r:
 whose inverse matrix is the covariance; s² = RSS/(N − 1) and N_eff (``identify.uncertainty``) come from the
 Newtonian fit's residuals. Where the reading cannot tell a baseline from the drag, the interval of ln η widens.
 
-The simulator's own force error, a relative error σ_m of the simulated readings p (``identify.uncertainty``), moves
-ln η by σ_m times the same step's response to p, (Δ ln η, b) = σ_m C ω Aᵀ p with C the covariance above: about
-σ_m / e for a drag F ∝ η^e. It is reported apart from the noise's error (``model_log_std``), because it does not
-average out over windows: where the drag is set by inertia (e → 0 at high Reynolds numbers) the viscosity is not
-measured, whatever the noise, and that window's interval says so.
+The simulator's own force error (``identify.uncertainty``), a relative error σ_m of the simulated readings p and a
+relative error σ_i of their inertial part p − J (J = dp/d ln η, the readings' viscous part), moves ln η by the same
+step's response to them, (Δ ln η, b) = C ω Aᵀ (σ_m p) and C ω Aᵀ (σ_i (p − J)) with C the covariance above, in
+quadrature: about σ_m / e and σ_i (1 − e) / e for a reading whose viscous share is e. It is reported apart from the
+noise's error (``model_log_std``), because it does not average out over windows: where the drag is set by inertia
+(e → 0 at high Reynolds numbers) the viscosity is not measured, whatever the noise, and that window's interval says
+so.
 
 The Newtonian-equivalent viscosity η_N is the fluid's apparent viscosity at the window's Metzner-Otto effective
 shear rate γ̇_eff = k_s U / a [1/s] (U the rod's speed, a its radius; k_s measured with the power-law probe of
@@ -59,7 +61,7 @@ class ViscosityPoint:
         measured_shear_rate: the window's effective shear rate γ̇_eff [1/s] as measured by the power-law probe.
         viscosity: the Newtonian-equivalent viscosity η_N [Pa·s].
         log_std: standard error of ln η_N from the reading's noise and baseline [1].
-        model_log_std: standard error of ln η_N from the simulator's relative force error σ_m [1] (module
+        model_log_std: standard error of ln η_N from the simulator's relative force errors σ_m and σ_i [1] (module
             docstring); common to windows of similar Reynolds number.
         baseline: the sensor's baseline in the window [N] (a nuisance parameter, module docstring).
         resolvable: whether the reading's level lies above that of the lowest informative ladder probe (a thinner
@@ -118,15 +120,17 @@ def window_simulations(guessed: bool, iterations: int) -> int:
 
 
 def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, guess: float | None = None,
-                     iterations: int = 3, model_error: float = MODEL_FORCE_ERROR,
+                     iterations: int = 3, model_error: float = MODEL_FORCE_ERROR, inertial_error: float = 0.0,
                      on_evaluation: Callable[[float | None], None] | None = None) -> ViscosityPoint:
     """The apparent viscosity of ``window`` (see the module docstring) on the simulation ``config`` for a fluid of
     ``density`` [kg/m³]. ``guess`` [Pa·s] (a neighbouring window's viscosity) shortens the ladder to two probes a
     factor ``LADDER_FACTOR`` either side; without it the full ladder (one probe per decade) is simulated.
     ``iterations``: Gauss-Newton iterations of the Newtonian fit. ``model_error``: the relative 1-σ error σ_m of
-    ``config``'s simulated force (``identify.uncertainty``; 0 leaves it out). ``on_evaluation(loss)`` is called
+    ``config``'s simulated force, ``inertial_error`` the relative 1-σ error σ_i of its inertial part
+    (``identify.uncertainty``; 0 leaves either out). ``on_evaluation(loss)`` is called
     after every simulation, with the fit's loss [N] where the simulation is the fit's, else None."""
     checked_model_error(model_error, "model_error")
+    checked_model_error(inertial_error, "inertial_error")
     config = recording_config(config, window.recording)
     problem = StirProblem(window.recording, config, density, Windows(window.start, window.end, window.end))
     evaluations = 0
@@ -153,7 +157,7 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
     log_eta, log_std, model_log_std, baseline = with_baseline(
         fit.jacobian[train, 0], (problem.measured - fit.predicted)[train], fit.theta[0],
         window.recording.sensor.resolution or 0.0, fit.simulated_readings[train],
-        force_error(model_error, correction))
+        force_error(model_error, correction), inertial_error)
     eta = math.exp(log_eta)
     rate = effective_shear_rate(problem, eta, on_evaluation=count)
     return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,
@@ -177,6 +181,7 @@ class WindowsJob:
     density: float  # kg/m³
     iterations: int
     model_error: float
+    inertial_error: float = 0.0
 
     @property
     def priority(self) -> tuple[bool, float]:
@@ -192,7 +197,7 @@ class WindowsJob:
             points.append(window_viscosity(window, self.config, self.density,
                                            guess=points[-1].viscosity if points else None,
                                            iterations=self.iterations, model_error=self.model_error,
-                                           on_evaluation=evaluation))
+                                           inertial_error=self.inertial_error, on_evaluation=evaluation))
             report(("window", self.stage, window.label))
         return points
 
@@ -214,11 +219,13 @@ def recording_config(config: SimConfig, recording: Recording) -> SimConfig:
 
 
 def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float, resolution: float,
-                  readings: np.ndarray, model_error: float) -> tuple[float, float, float, float]:
+                  readings: np.ndarray, model_error: float, inertial_error: float = 0.0
+                  ) -> tuple[float, float, float, float]:
     """ln η, its standard errors from the noise and from the simulator, and the baseline b [N], from the
     Gauss-Newton step with the baseline's prior (module docstring): ``jacobian`` d reading / d ln η [N],
     ``residuals`` measured − fitted [N], ``log_eta`` the fit's ln η, ``resolution`` q [N] (0: no baseline),
-    ``readings`` the simulated readings p [N] and ``model_error`` their relative error σ_m [1]."""
+    ``readings`` the simulated readings p [N], ``model_error`` their relative error σ_m [1] and
+    ``inertial_error`` the relative error σ_i of their inertial part p − J [1]."""
     n = residuals.size
     weight = min(effective_samples(residuals), float(n)) / n / max(float(residuals @ residuals) / max(n - 1, 1),
                                                                     1e-300)
@@ -236,5 +243,6 @@ def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float, r
         return log_eta, math.inf, math.inf, 0.0
     step = covariance @ rhs
     shift = covariance @ (weight * design.T @ readings * keep)  # d(ln η, b) per unit relative error of p
+    inertial = covariance @ (weight * design.T @ (readings - jacobian) * keep)  # ... of p's inertial part
     return (log_eta + float(step[0]), math.sqrt(max(float(covariance[0, 0]), 0.0)),
-            model_error * abs(float(shift[0])), float(step[1]))
+            math.hypot(model_error * float(shift[0]), inertial_error * float(inertial[0])), float(step[1]))

@@ -228,11 +228,12 @@ def joint_simulations(name: str, iterations: int) -> int:
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,
               models: list[str], *, iterations: int = 5, workers: int = 1, model_error: float = 0.0,
-              report: Callable[[tuple], None] | None = None) -> JointFit:
+              inertial_error: float = 0.0, report: Callable[[tuple], None] | None = None) -> JointFit:
     """Fit each law in ``models`` to the readings of every window of ``points``, whose effective shear rates
     [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes. Each
     law's covariance holds the simulator's relative force error ``model_error`` σ_m as an error of each window's
-    amplitude, independent between windows, as the points' intervals do (``identify.uncertainty.laplace``).
+    amplitude and ``inertial_error`` σ_i as one of its inertial part, independent between windows, as the points'
+    intervals do (``identify.uncertainty.laplace``).
     ``report`` receives the fits' events (``identify.jobs``), whose keys start with the law's name."""
     if not models:
         raise ValueError("behaviour.joint_models is empty; name at least one law of diffstir.rheology.LAWS")
@@ -281,7 +282,9 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     uncertainty = {n: laplace(f.model, f.theta, weights[:, None] * f.jacobian, residuals[n],
                               readings=weights * f.predicted,
                               model_error=math.hypot(model_error, problem.slice_sigma(f.model.material)),
-                              windows=problem.window_labels) for n, f in fits.items()}
+                              windows=problem.window_labels,
+                              viscous_readings=weights * (f.jacobian @ f.model.stress_direction()),
+                              inertial_error=inertial_error) for n, f in fits.items()}
     best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
     n_effective = uncertainty[best].effective_samples
     bics = {n: bic(r, fits[n].model.size, n_effective) for n, r in residuals.items()}

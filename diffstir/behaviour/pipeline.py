@@ -24,7 +24,7 @@ from ..density import estimate_recording_density
 from ..identify import FitModel
 from ..identify.pipeline import configured_density
 from ..identify.progress import Progress
-from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
+from ..identify.uncertainty import INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Z95
 from ..mpm import SimConfig
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
@@ -77,7 +77,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
                  iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
                  speed_tolerance: float = 0.05, min_window: float = 0.3, pause_speed: float = PAUSE_SPEED,
                  replicates: int = 200, seed: int = 0, model_error: float = MODEL_FORCE_ERROR,
-                 slope_test: str = "combined", workers: int = 1, progress: bool = False) -> Behaviour:
+                 inertial_error: float = INERTIAL_FORCE_ERROR, slope_test: str = "combined", workers: int = 1,
+                 progress: bool = False) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
@@ -95,6 +96,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
             (``apparent``) and the joint laws' covariances; the default is the fitting grid's
             (``identify.uncertainty``), raise it for a coarser one (``COARSE_FORCE_ERROR`` for
             ``conf/sim/coarse2d.yaml``).
+        inertial_error: the relative 1-σ error σ_i of the inertial part of ``config``'s simulated force, in the
+            same intervals and covariances (``identify.uncertainty``; the default is the fitting grid's).
         slope_test: ``"combined"``, the points' slope and the joint power law's n − 1 combined, their error
             scaled by their disagreement (``classify``, 4; the points alone without a joint power law);
             ``"points"``, the slope of the per-speed points (``classify``, 1); ``"joint_index"``, the joint power
@@ -119,8 +122,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
                 for recording_windows in windows for k, label in enumerate(w.label for w in recording_windows)}
     expected.update({f"joint {name}": joint_simulations(name, joint_iterations) for name in joint_models})
     with Progress(expected, bar=progress, label="behaviour") as tracker:
-        jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], iterations, model_error)
-                for k, recording_windows in enumerate(windows) if recording_windows]
+        jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], iterations, model_error,
+                           inertial_error) for k, recording_windows in enumerate(windows) if recording_windows]
         with Workers(min(workers, len(jobs)), partial(window_event, tracker)) as pool:
             points = [p for recording_points in pool.map(jobs) for p in recording_points]
         used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
@@ -135,7 +138,8 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         joint, index, test = None, None, None
         if joint_models:
             joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
-                              workers=workers, model_error=model_error, report=partial(_joint_evaluation, tracker))
+                              workers=workers, model_error=model_error, inertial_error=inertial_error,
+                              report=partial(_joint_evaluation, tracker))
             for name in joint_models:
                 tracker.finished(f"joint {name}")
             slope = joint.power_law_slope()
