@@ -346,9 +346,12 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
 
 
 def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings, capsys):
+    # the truth is FAST's own simulator, so its inertial force is exact here: σ_i, the 2.5 mm slice's error against
+    # a finite-element reference, would be a per-window error this recording does not have (at 0.16 m/s on 1 cm
+    # cells the thinned fluid's reading is largely inertial, and σ_i widens n's interval past 1)
     result = characterise([lab_recordings["thinning"]], config=FAST, iterations=2,
                           joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50, workers=2,
-                          slope_test="joint_index", progress=True)
+                          slope_test="joint_index", inertial_error=0.0, progress=True)
     c = result.classification
     # Metzner-Otto: a power law's Newtonian-equivalent viscosity goes as U^(n-1) in creeping flow; inertia and the
     # capped far field flatten it, so the per-speed slope only has to be negative; the joint fit, through the same
