@@ -48,7 +48,7 @@ def test_fit_reads_density_and_viscosity_within_its_intervals(name, tmp_path):
 def test_behaviour_classifies_three_constant_speed_stirs_at_200_hz(tmp_path):
     recordings = ",".join(example(f"rig_behaviour_{s}") for s in ("slow", "mid", "fast"))
     ok(run("diffstir-fit", "experiment=behaviour", f"recordings=[{recordings}]", "out=behaviour", cwd=tmp_path,
-           timeout=7200))  # 36 min alone on 2 cores (docs/acceptance.md)
+           timeout=7200))  # 25 min on 2 cores (docs/acceptance.md)
     report = json.loads((tmp_path / "behaviour" / "report.json").read_text())
     assert len(report["points"]) >= 3  # one window per speed
     # a Carreau fluid (n = 0.6, lambda = 0.5 s) far past its 2 1/s corner: shear-thinning
