@@ -184,8 +184,8 @@ def test_rod_feels_the_pressure_gradient_2d(pressure):
     """The pressure part of the rod's reaction: the rod held still off centre in the slice under a body force g
     along x (standing in for gravity, which a horizontal slice lacks) is pushed back by the hydrostatic pressure
     gradient, −ρ g π a² per unit length, within ``CLOSED_FORM_TOLERANCE`` as the other closed forms (0.991 and,
-    with the projection, 1.003 measured; the 3-D rod's buoyancy, below, still fails). 1 Pa·s damps the settling's sloshing within the
-    first 0.2 s of 0.6 s."""
+    with the projection, 1.003 measured; the 3-D rod's buoyancy, below, still fails). 1 Pa·s damps the settling's
+    sloshing within the first 0.2 s of 0.6 s."""
     g = 1.0
     steady = rod_in_pressure_gradient(SLICE.replace(pressure=pressure), g)
     assert float(steady[0]) == pytest.approx(-1000.0 * g * math.pi * Rig().rod.radius**2,

@@ -152,7 +152,8 @@ def behaviour(cfg: DictConfig) -> None:
                           joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
                           speed_tolerance=b.speed_tolerance, min_window=b.min_window, pause_speed=b.pause_speed,
                           replicates=b.replicates, seed=b.seed, model_error=b.model_error,
-                          inertial_error=b.inertial_error, slope_test=b.slope_test, workers=config_workers(cfg), progress=bool(cfg.progress))
+                          inertial_error=b.inertial_error, slope_test=b.slope_test, workers=config_workers(cfg),
+                          progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     b = result.summary()["behaviour"]
