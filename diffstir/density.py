@@ -32,7 +32,7 @@ from diffstir.recording.errors import RecordingError
 from diffstir.recording.format import GRAVITY, DensityMeasurement, Recording
 from diffstir.recording.smoothing import smooth_path
 
-#: m/s: a rod slower than this rests (``diffstir.behaviour.windows.PAUSE_SPEED``).
+#: m/s: a rod slower than this rests (``diffstir.fitting.windows.PAUSE_SPEED``).
 REST_SPEED = 1e-3
 #: Fewest samples of a quiet stretch whose scatter stands for a reading's noise.
 REST_SAMPLES = 20
@@ -178,3 +178,36 @@ def estimate_recording_density(rec: Recording, **kwargs) -> DensityEstimate:
         return estimate_density(rec.density, **kwargs)
     except RecordingError as exc:
         raise RecordingError(f"{rec.source('yaml')}: {exc}") from None
+
+
+def density_estimate(recording: Recording, density: float | None) -> dict:
+    """The fluid's density [kg/m³] with its 95 % interval: Archimedes from the recording's density block, or
+    ``density`` from the config when the recording has none."""
+    if recording.density is not None:
+        est = estimate_recording_density(recording)
+        return {"value": est.value, "ci95": list(est.ci95), "unit": "kg/m^3", "source": "archimedes",
+                "uncertainty_source": est.uncertainty_source}
+    return configured_density(density, f"{recording.source('yaml')}: no density block")
+
+
+def configured_density(density: float | None, missing: str) -> dict:
+    """The config's ``density`` [kg/m³] as a density report, for recordings without a density block (``missing``
+    says which, for the error when none is configured either)."""
+    if density is None:
+        raise RecordingError(f"{missing}, and no density (kg/m^3) was given; set density=... in the config")
+    if not 100.0 <= density <= 25000.0:
+        raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
+    return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}
+
+
+def combined_density(recordings: list[Recording], density: float | None) -> dict:
+    """The inverse-variance weighted mean of the recordings' Archimedes densities [kg/m³] with its 95 % interval,
+    or ``density`` [kg/m³] when no recording has a density block."""
+    estimates = [estimate_recording_density(r) for r in recordings if r.density is not None]
+    if estimates:
+        w = np.array([1.0 / e.std**2 for e in estimates])
+        value = float(np.sum(w * [e.value for e in estimates]) / w.sum())
+        std = float(1.0 / math.sqrt(w.sum()))
+        return {"value": value, "ci95": [value - 1.96 * std, value + 1.96 * std], "unit": "kg/m^3",
+                "source": f"archimedes ({len(estimates)} recordings)"}
+    return configured_density(density, f"{recordings[0].source('yaml')}: no recording has a density block")

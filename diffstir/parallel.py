@@ -3,7 +3,7 @@
 A job (``Job``) is a picklable object with a ``stage`` and a ``key`` that name it, a ``priority`` (higher starts
 first) and ``run(report)``, which returns its result and may call ``report(event)`` with a tuple
 ``(kind, stage, name, *data)`` (progress, checkpoints): the parent's ``report`` receives it as it happens. The
-identification's fits (``identify.jobs``) and the diagnosis's candidates (``diagnose.compare``) run this way.
+identification's fits (``fitting.jobs``) and the diagnosis's candidates (``diagnosis.compare``) run this way.
 """
 
 from __future__ import annotations

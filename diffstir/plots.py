@@ -24,15 +24,13 @@ def save_figure(fig, path: Path) -> Path:
     return path
 
 
-def viscosity_band(ax, rates: np.ndarray, model, theta: np.ndarray, covariance: np.ndarray, label: str,
+def viscosity_band(ax, rates: np.ndarray, eta: np.ndarray, lower: np.ndarray, upper: np.ndarray, label: str,
                    alpha: float = 0.15) -> None:
-    """A fitted law's flow curve η(γ̇) [Pa·s] over ``rates`` [1/s] on log axes, with its 95 % band where finite."""
-    from .identify.uncertainty import log_viscosity_interval
-
-    eta, band_lo, band_hi = log_viscosity_interval(model, theta, covariance, rates)
+    """A flow curve η(γ̇) [Pa·s] over ``rates`` [1/s] on log axes, with its 95 % band [``lower``, ``upper``]
+    [Pa·s] where finite (``fitting.log_viscosity_interval``)."""
     line, = ax.loglog(rates, eta, label=label)
-    finite = np.isfinite(band_hi)
-    ax.fill_between(rates[finite], band_lo[finite], band_hi[finite], color=line.get_color(), alpha=alpha)
+    finite = np.isfinite(upper)
+    ax.fill_between(rates[finite], lower[finite], upper[finite], color=line.get_color(), alpha=alpha)
 
 
 def plot_forces(result, law, out: Path) -> tuple[Path, Path]:

@@ -1,4 +1,5 @@
-"""The JSON and markdown files every report writes (identification, behaviour, mixing, diagnosis, lab truth)."""
+"""The JSON and markdown files every report writes (identification, behaviour, mixing, diagnosis, lab truth), and
+how their values and 95 % intervals are printed."""
 
 from __future__ import annotations
 
@@ -55,3 +56,25 @@ def write_text_atomically(path: str | Path, text: str) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def interval_summary(ci95: dict[str, tuple[float, float]], identifiable: dict[str, bool]) -> dict:
+    """The 95 % intervals of a report, SI by name: [lower, upper] (an open end as null) for an identifiable
+    parameter, null for one the recording does not determine (its interval's ends say nothing)."""
+    return {k: [finite_or_none(lo), finite_or_none(hi)] if identifiable[k] else None for k, (lo, hi) in ci95.items()}
+
+
+def format_param(name: str, value: float, unit: str, interval: list | None) -> str:
+    """``name = value unit [lower, upper]`` for a table (no unit for a dimensionless one), or "not identifiable"
+    in place of the interval."""
+    return f"{name} = {value:.4g}{'' if unit == '1' else ' ' + unit} {format_interval(interval)}"
+
+
+def format_interval(interval: list | None) -> str:
+    """A report's 95 % interval for a table: [lower, upper], or "not identifiable" where it is null."""
+    return "not identifiable" if interval is None else f"[{format_bound(interval[0])}, {format_bound(interval[1])}]"
+
+
+def format_bound(value) -> str:
+    """An interval end for a table: 3 significant digits, or inf when it is unbounded (None)."""
+    return "inf" if value is None else f"{value:.3g}"

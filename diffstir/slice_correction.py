@@ -1,7 +1,7 @@
 """The slice's error: the 3-D force on the rod over the 2-D slice's force per length times the immersion.
 
 A 2-D slice gives the force per length F'_2D [N/m] of the rig's cross-section; the rod in a real cup feels F_3D [N].
-Their ratio, from the 3-D finite-element study (``scripts/slice_error.py``, docs/accuracy.md, The slice's error),
+Their ratio, from the 3-D finite-element study (``scripts/slice_error.py``, docs/accuracy-slice.md, The slice's error),
 is modelled as a tip that adds an effective length a ℓ to the immersion h:
 
     F_3D = F'_2D (h + a ℓ),    factor = F_3D / (F'_2D h) = 1 + ℓ a / h,

@@ -38,7 +38,7 @@ from omegaconf import OmegaConf
 from diffstir.behaviour import CLASSES, characterise
 from diffstir.behaviour.classify import slope_agreement
 from diffstir.behaviour.pipeline import SLOPE_TESTS, reclassify, reported_joint_index
-from diffstir.identify.uncertainty import MODEL_FORCE_ERROR
+from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.recording import RecordingError
 

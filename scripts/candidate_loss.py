@@ -9,9 +9,9 @@ its Newtonian law identified the same way; then the physics candidate is simulat
         --params alpha=1,breakdown=0.3,rebuild_time=2 alpha=1,breakdown=0.3,rebuild_time=1
 
 ``--frozen`` simulates every point at the identified law's sound speed instead of its own (what a physics fit
-held before ``diffstir.diagnose.compare.refrozen``). Without ``--params`` it prints how far the sensor candidates'
+held before ``diffstir.diagnosis.compare.refrozen``). Without ``--params`` it prints how far the sensor candidates'
 linearised base reading p0 + (d p/d ln s) ln s is from the law simulated at ``--eta``
-(``diffstir.diagnose.compare.ScaleReadings``):
+(``diffstir.diagnosis.compare.ScaleReadings``):
 
     python scripts/candidate_loss.py --fluid castor_oil --effect sensor_deadband --eta 0.6
 """
@@ -24,11 +24,12 @@ import numpy as np
 import torch
 
 from diagnosis_benchmark import STRENGTHS, Lab, coarse, fluids
-from diffstir.diagnose.base import base_from_identification, simulated_reading
-from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel, scaled_law
-from diffstir.diagnose.compare import ScaleReadings
-from diffstir.identify import StirProblem, Windows, identify
-from diffstir.identify.initial import characteristic_shear_rate
+from diffstir.diagnosis.base import base_from_identification, simulated_reading
+from diffstir.diagnosis.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel, scaled_law
+from diffstir.diagnosis.compare import ScaleReadings
+from diffstir.fitting.initial import characteristic_shear_rate
+from diffstir.fitting.problem import StirProblem, Windows
+from diffstir.identification import identify
 
 
 def parse(text: str) -> dict[str, float]:

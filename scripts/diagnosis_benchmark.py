@@ -1,4 +1,4 @@
-"""Benchmark of diffstir.diagnose on virtual-lab recordings with one concealed effect.
+"""Benchmark of diffstir.diagnosis on virtual-lab recordings with one concealed effect.
 
 Each case is a lab recording (coarse 2-D slice, the paper's rig) of a Newtonian base fluid stirred forwards
 (0.06 m/s), held, and stirred backwards at half the speed, read by a component sensor with white noise and
@@ -35,13 +35,11 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from diffstir.diagnose import CANDIDATES, diagnose, write_diagnosis
-from diffstir.identify import identify
-from diffstir.lab import (
-    Fluid, HiddenPhysicsSpec, SensorModel, TemperatureDrift, Thixotropy, Viscoelasticity, stirring_programme,
-    synthesise,
-)
+from diffstir.diagnosis import CANDIDATES, diagnose, write_diagnosis
+from diffstir.identification import identify
+from diffstir.lab import Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
+from diffstir.mpm.hidden_physics import TemperatureDrift, Thixotropy, Viscoelasticity
 
 ROOT = Path(__file__).resolve().parents[1]
 EFFECTS = tuple(c for c in CANDIDATES if c != "none")
@@ -52,7 +50,7 @@ SENSOR = SensorModel(mode="component", axis=(0.0, 1.0), sample_rate=100.0, resol
 #: The warming truth's sensitivity b [1/K]: only κ = b r shows in a force, and b at the lab's upper bound keeps the
 #: rate r within the lab's ±1 K/s for every strength.
 WARMING_SENSITIVITY = 0.5
-#: The Bingham truth's Papanastasiou rate as a fraction of U/a: half the candidate's (diffstir.diagnose), so the
+#: The Bingham truth's Papanastasiou rate as a fraction of U/a: half the candidate's (diffstir.diagnosis), so the
 #: candidate is not the truth's own law; the lab default (0.01 1/s) would cost ten times the simulation time.
 TRUTH_REGULARISATION = 0.05
 

@@ -21,10 +21,10 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from scipy.optimize import brentq
 
-from diffstir.identify.initial import characteristic_shear_rate, effective_shear_rate
-from diffstir.identify.models import FitModel
-from diffstir.identify.optimise import Readings
-from diffstir.identify.problem import StirProblem, Windows
+from diffstir.fitting.initial import characteristic_shear_rate, effective_shear_rate
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.optimise import Readings
+from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.lab import make_fluid_law, truth_path
 from diffstir.recording import load_recording
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The simulator on a CUDA GPU (docs/benchmarks.md, "On a GPU"; docs/validation.md, "Boundary particles"):
+# The simulator on a CUDA GPU (docs/benchmarks.md, "On a GPU"; docs/validation-rest-3d.md, "Boundary particles"):
 #   1. the CUDA tests (tests/test_cuda.py, the rheology laws on cuda): the GPU gives the CPU's forces, gradients and
 #      sensitivities;
 #   2. ms per step forward and forward+backward on the GPU, next to the eager step on the CPU in the same process;

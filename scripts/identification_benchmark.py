@@ -8,7 +8,7 @@ Two parts, each printing markdown tables:
   the viscosity with their 95 % intervals, the error, whether the interval holds the truth, and whether the
   recording resolves viscosity at all (``resolvable``: a doubling of η must change the reading by more than the
   noise and the sensor's resolution; where it does not, the report says "not identifiable"). Beside it the estimate
-  from the reading's size (``identify.magnitude``, the report's ``magnitude``): its viscosity, interval, error and
+  from the reading's size (``fitting.magnitude``, the report's ``magnitude``): its viscosity, interval, error and
   whether it resolves the viscosity.
 * ``laws``: fluids of every non-Newtonian class (presets of ``conf/lab/fluid`` or ``EXTRA_FLUIDS``) stirred at three
   speeds, identified with every
@@ -43,9 +43,9 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.identify import identify
-from diffstir.identify.family import NEWTONIAN_CHANGE
-from diffstir.identify.uncertainty import COARSE_FORCE_ERROR, MODEL_FORCE_ERROR
+from diffstir.fitting.family import NEWTONIAN_CHANGE
+from diffstir.fitting.uncertainty import COARSE_FORCE_ERROR, MODEL_FORCE_ERROR
+from diffstir.identification import identify
 from diffstir.lab import Fluid, SensorModel, make_fluid_law, stirring_programme, synthesise
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -79,7 +79,7 @@ def fluid_preset(name: str) -> Fluid:
 def true_class(law: dict, probed: tuple[float, float]) -> str:
     """The class a fluid shows over the probed shear rates [1/s]: yield stress for a law with τ_y > 0, otherwise
     by how its η changes across the band (less than ``NEWTONIAN_CHANGE``: Newtonian there), as
-    ``diffstir.identify.family`` reads a fitted law."""
+    ``diffstir.fitting.family`` reads a fitted law."""
     if law["params"].get("tau_y", 0.0) > 0.0:
         return "yield_stress"
     eta = make_fluid_law(law).double()(torch.tensor(probed, dtype=torch.float64)).detach()

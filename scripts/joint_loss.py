@@ -1,5 +1,5 @@
 """The loss a law reaches on every speed at once, at parameters you choose, on a fluid of the behaviour benchmark
-(docs/accuracy.md, Behaviour classification): how well a law *could* fit the joint problem, apart from how far the
+(docs/accuracy-behaviour.md, Behaviour classification): how well a law *could* fit the joint problem, apart from how far the
 joint fit got.
 
 The fluid is stirred by the lab along the benchmark's programme as ``behaviour_benchmark.py`` stirs it (same truth
@@ -15,7 +15,7 @@ assumes; where a law's waveform itself is off, the rescaled residual stays above
 
 ``--sound-speed-factors`` also simulates each law with its rollout's sound speed held at c·f for each factor f:
 a change the readings should not notice, so what they do is the simulation's jitter, window by window. The last
-table gives each law's BIC at each sound speed as the joint fit takes it (``identify.selection.bic``, N_eff of the
+table gives each law's BIC at each sound speed as the joint fit takes it (``fitting.selection.bic``, N_eff of the
 best law at its own sound speed), with one variance for all windows and, with ``--window-scales`` s_w [N] (the
 benchmark report's ``points[].loss``), with each window's residuals in units of its s_w (``JointProblem``).
 
@@ -36,12 +36,12 @@ from omegaconf import OmegaConf
 
 from behaviour_benchmark import FLUIDS, ROOT, add_lab_arguments, lab_recording
 from diffstir.behaviour.joint import JointProblem
-from diffstir.behaviour.pipeline import combined_density
-from diffstir.behaviour.windows import speed_windows
-from diffstir.identify import FitModel
-from diffstir.identify.optimise import Readings
-from diffstir.identify.selection import bic
-from diffstir.identify.uncertainty import effective_samples
+from diffstir.density import combined_density
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.optimise import Readings
+from diffstir.fitting.selection import bic
+from diffstir.fitting.uncertainty import effective_samples
+from diffstir.fitting.windows import speed_windows
 from diffstir.recording import load_recording, save_recording
 
 

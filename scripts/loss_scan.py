@@ -1,5 +1,5 @@
 """Where a simulation resolution's own loss minimum lies: the paper's loss and the mean |reading| of Newtonian
-fluids on a virtual-lab recording, over a list of viscosities (docs/accuracy.md, the Newtonian sweep).
+fluids on a virtual-lab recording, over a list of viscosities (docs/accuracy-2d.md, Newtonian fluids).
 
 The recording is the one ``identification_benchmark.py --part newtonian`` makes for the same true viscosity and
 seed (the seed there is ``--seed`` + the viscosity's index in its list: 3 for 0.2 Pa·s, 6 for 10 Pa·s with the
@@ -8,7 +8,7 @@ defaults). Each viscosity costs one forward simulation on ``--sim``.
     python scripts/loss_scan.py --eta-true 10 --seed 6 --sim sim/slice2d.yaml --etas 10 10.5 11.3 12.5
 
 ``--frozen-at`` simulates each viscosity with the sound speed of another (``StirProblem.frozen``), as a fit holds
-the sound speed of its start (``identify.fit_model``): ``--etas 1 1 1 --frozen-at 0.8 1 1.25`` reads 1 Pa·s at
+the sound speed of its start (``fitting.fit_model``): ``--etas 1 1 1 --frozen-at 0.8 1 1.25`` reads 1 Pa·s at
 the sound speeds of 0.8, 1 and 1.25 Pa·s, the size of the bias a start that far off leaves in the reading.
 """
 
@@ -20,9 +20,10 @@ import time
 import numpy as np
 import torch
 
-from diffstir.identify import FitModel, StirProblem, Windows
-from diffstir.identify.optimise import Readings
-from diffstir.identify.pipeline import density_estimate
+from diffstir.density import density_estimate
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.optimise import Readings
+from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.lab import Fluid, stirring_programme, synthesise
 from identification_benchmark import NEWTONIAN_PROGRAMME, RADIUS, RAMP, sensor_preset, sim
 

@@ -30,10 +30,11 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.identify.uncertainty import COARSE_FORCE_ERROR
+from diffstir.fitting.uncertainty import COARSE_FORCE_ERROR
 from diffstir.lab import (Blend, Fluid, SensorModel, simulate_truth, stirring_programme, synthesise_blend,
                           write_lab_recording)
-from diffstir.mixing import analyse_mixing, blend_range, lederer_roegiers, write_mixing_report
+from diffstir.mixing import analyse_mixing, write_mixing_report
+from diffstir.rheology.blending import blend_range, lederer_roegiers
 
 ROOT = Path(__file__).resolve().parents[1]
 ALPHA = 0.6  # the truth's Lederer-Roegiers α [1]

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The 3-D MPM's own error on a CUDA GPU (docs/accuracy.md, The 3-D MPM's own error): the drag of the rod stirring
+# The 3-D MPM's own error on a CUDA GPU (docs/accuracy-slice.md, The 3-D MPM's own error): the drag of the rod stirring
 # the paper's cup (rig paper_e25, 1 Pa·s, 0.1 m/s) at 1 cm (conf/sim/paper3d.yaml), 5 mm (conf/sim/fine3d.yaml)
 # and 2.5 mm cells (fine3d's numerics), against the finite-element cup's 0.328 N (docs/data/slice_error.json).
 # The 2.5 mm run, the dearest, comes last and is cut off DEADLINE seconds after the script's start.

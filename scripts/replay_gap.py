@@ -17,8 +17,8 @@ import numpy as np
 import torch
 
 from diagnosis_benchmark import SENSOR, Lab, coarse, fluids
-from diffstir.diagnose.base import simulated_reading
-from diffstir.identify import StirProblem, Windows
+from diffstir.diagnosis.base import simulated_reading
+from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.trajectory import Trajectory
 
 

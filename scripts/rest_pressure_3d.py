@@ -1,4 +1,4 @@
-"""Why the rod at rest in 3-D does not feel its buoyancy (docs/validation.md, Known defects).
+"""Why the rod at rest in 3-D does not feel its buoyancy (docs/validation-rest-3d.md, The 3-D fluid at rest).
 
 The paper's rig in 3-D, the fluid settled and then held still for ``--hold`` seconds around the still rod. Printed:
 
@@ -36,7 +36,7 @@ import torch
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.mpm.boundaries import is_solid
 from diffstir.mpm.step import MASS_FLOOR, grid_update, p2g
-from diffstir.mpm.walls import wall_impulses
+from diffstir.mpm.wall_pressure import wall_impulses
 from diffstir.rheology import Newtonian
 from diffstir.rig import Rig
 from diffstir.trajectory import stationary

@@ -5,7 +5,7 @@ The Newtonian benchmark's 3 Pa·s case (``identification_benchmark.py --part new
 the paper's sensor, one 15 mm circle at 0.1 m/s for 1.3 s, seed 5) fitted on the default grid
 (``conf/sim/slice2d.yaml``). The elasticity over a step h is the least-squares ratio
 e(h) = (p(θ + h) − p(θ))·p(θ) / (h p(θ)·p(θ)), θ = ln η; its error is about the readings' relative noise
-between nearby viscosities divided by h, which is why ``identify.optimise`` makes no Broyden update over a step
+between nearby viscosities divided by h, which is why ``fitting.optimise`` makes no Broyden update over a step
 shorter than ``SECANT_FRACTION`` · ``FD_STEP``.
 
     python scripts/secant_noise.py [--eta 3.0] [--steps 6.4e-4 2e-3 1e-2 5e-2]
@@ -27,8 +27,8 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.identify import StirProblem
-from diffstir.identify.optimise import FD_STEP, SECANT_FRACTION
+from diffstir.fitting.optimise import FD_STEP, SECANT_FRACTION
+from diffstir.fitting.problem import StirProblem
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.rheology import Newtonian
 

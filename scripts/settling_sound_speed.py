@@ -23,8 +23,9 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.identify import FitModel, StirProblem
-from diffstir.identify.optimise import Readings
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.optimise import Readings
+from diffstir.fitting.problem import StirProblem
 from diffstir.recording import load_recording
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -2,7 +2,7 @@
 
 The 3-D force on the rod F_3D [N] (``stir_reference_3d.solve`` on ``build_mesh``) and the force per length of the
 same cross-section F'_2D [N/m] (``stir_reference_3d.slab_force``) come from one method, so their ratio over the
-immersed length h = H − g [m] is the slice's geometric error alone (docs/accuracy.md, The slice's error).
+immersed length h = H − g [m] is the slice's geometric error alone (docs/accuracy-slice.md, The slice's error).
 
 Meshes. A Newtonian Stokes row solves the cup on ``FINE_CELL`` and the slab on ``SLAB_CELL`` (the slab's error is
 about first order in its cell and ten times cheaper, the cup's is below 0.1 % at 3 mm on the paper's rig,
@@ -95,7 +95,7 @@ def row(name: str, rig: stokes3d.CupRig, law: dict, speed: float, reynolds: floa
 
 def write(path: Path, rows: list, command: str) -> None:
     """The table as JSON, written atomically."""
-    data = {"description": "F_3D / (F'_2D h) from scripts/stir_reference_3d.py (docs/accuracy.md, The slice's "
+    data = {"description": "F_3D / (F'_2D h) from scripts/stir_reference_3d.py (docs/accuracy-slice.md, The slice's "
                            "error); forces are the drag against the rod's motion, N and N/m",
             "command": command, "date": datetime.date.today().isoformat(),
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import yaml
 
-from diffstir.identify.uncertainty import MAX_FACTOR
+from diffstir.fitting.uncertainty import MAX_FACTOR
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -103,9 +103,8 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     the slice correction, both resolutions with ``sim_settings``."""
     import torch
 
-    from diffstir.identify import identify
-    from diffstir.lab import (Fluid, SensorModel, stirring_programme, synthesise, truth_path,
-                              write_lab_recording)
+    from diffstir.identification import identify
+    from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise, truth_path, write_lab_recording
     from diffstir.recording import load_recording
     from diffstir.rectifier.apply import load_rectifier, refine
 

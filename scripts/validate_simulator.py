@@ -55,7 +55,7 @@ SimConfig fields on each of them (e.g. dt_max=0.004 for a longer step).
   I = F − V; the simulated force's deviation D = F_sim − F: drag and radial force from 0.9 s (D / I per component),
   and the rms of |D| over the rms of |I| from 0.3 s, both components together (all of D counted against I, the
   viscous part's own error included). The rms of the last over the three viscosities is the inertial force error
-  σ_i of diffstir.identify.uncertainty.INERTIAL_FORCE_ERROR (not run by default; the references take minutes).
+  σ_i of diffstir.fitting.uncertainty.INERTIAL_FORCE_ERROR (not run by default; the references take minutes).
 - stir_history: the stir at 1 Pa s (compressible, at 1 % compression, without FLIP, and with J relaxed over 10 ms) in
   time windows: the drag and radial force against the reference's, and the particles next to the rod (within half
   a cell and from half a cell to one cell of its surface, per area, over the resting fluid's), and the fluid's
@@ -85,13 +85,13 @@ from problems import (couette_torque_newtonian, couette_torque_power_law, fittin
 
 import numpy as np  # noqa: E402
 
-from diffstir.mpm import SimConfig, StirringSimulator  # noqa: E402
-from diffstir.mpm.boundaries import RodPose  # noqa: E402
-from diffstir.mpm.packing import deposit  # noqa: E402
-from diffstir.mpm.step import node_fill  # noqa: E402
-from diffstir.rheology import Newtonian, PowerLaw  # noqa: E402
-from diffstir.rig import Rig  # noqa: E402
-from diffstir.trajectory import circle, spin, stationary, translate  # noqa: E402
+from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.mpm.boundaries import RodPose
+from diffstir.mpm.packing import deposit
+from diffstir.mpm.step import node_fill
+from diffstir.rheology import Newtonian, PowerLaw
+from diffstir.rig import Rig
+from diffstir.trajectory import circle, spin, stationary, translate
 
 RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius

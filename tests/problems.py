@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,10 +11,10 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.identify.problem import rig_from_recording, trajectory_from_recording
+from diffstir.fitting.problem import rig_from_recording, trajectory_from_recording
 from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.recording import Recording
 from diffstir.mpm.state import State
+from diffstir.recording import Recording
 from diffstir.rheology import Newtonian
 from diffstir.rig import Rig, Rod
 from diffstir.slice_correction import trajectory_correction
@@ -32,7 +33,7 @@ def fitting_default() -> SimConfig:
 def fitted_force(law, blank: Recording, config: SimConfig, density: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
     """What the fit reads as the force of ``law`` on ``blank``'s rig and rod path: the step times [s] and the force
     [N] (steps, 3) of the fitting simulator along the spline the fitter replays, a 2-D slice's force per length
-    times the immersion h and the slice correction C (``identify.problem``: F = F' h C)."""
+    times the immersion h and the slice correction C (``fitting.problem``: F = F' h C)."""
     rig, trajectory = rig_from_recording(blank), trajectory_from_recording(blank)
     with torch.no_grad():
         result = StirringSimulator(law, rig, config, density=density)(trajectory)
@@ -92,7 +93,8 @@ def rod_in_pressure_gradient(config: SimConfig, g: float = 1.0) -> torch.Tensor:
     the last 30 % of 0.6 s."""
     sim = StirringSimulator(Newtonian(eta=1.0), PAPER_RIG, config.replace(compressibility=None, sound_speed=2.0),
                             density=1000.0)
-    sim.scene.gravity = torch.tensor([g, 0.0], dtype=sim.scene.gravity.dtype, device=sim.scene.gravity.device)
+    sim.scene = replace(sim.scene, gravity=torch.tensor([g, 0.0], dtype=sim.scene.gravity.dtype,
+                                                        device=sim.scene.gravity.device))
     with torch.no_grad():
         force = sim(stationary(0.6, position=(0.015, 0.0), sample_rate=1000.0)).force
     return force[int(0.7 * len(force)):].mean(0)

@@ -11,18 +11,19 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope, speed_windows
-from diffstir.behaviour.apparent import with_baseline
+from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope
 from diffstir.behaviour.classify import YIELD_CRITICAL, SlopeEstimate, combined_slope, slope_agreement
 from diffstir.behaviour.joint import paste_start
 from diffstir.behaviour.pipeline import reclassify
-from diffstir.identify.problem import rig_from_recording
-from diffstir.identify.uncertainty import Z95, effective_samples
+from diffstir.fitting.apparent import with_baseline
+from diffstir.fitting.problem import rig_from_recording
+from diffstir.fitting.uncertainty import Z95, effective_samples
+from diffstir.fitting.windows import speed_windows
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
 from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, save_recording
-from diffstir.slice_correction import stir_correction
 from diffstir.rheology import FlowCurve, Newtonian
+from diffstir.slice_correction import stir_correction
 
 # 1 cm cells, the rod 2.5 across, the sound speed 6 times the fastest stir, the viscosity capped at 5 Pa s, steps of
 # 3.6 ms: a fast stand-in for the pipeline's statistics, the same model for the truth and the fit, with APIC
@@ -257,7 +258,7 @@ def test_a_recording_without_a_steady_speed_is_refused_before_any_simulation(mon
     def simulated(*args, **kwargs):
         raise AssertionError("simulated before every recording's windows were found")
 
-    monkeypatch.setattr("diffstir.behaviour.apparent.window_viscosity", simulated)
+    monkeypatch.setattr("diffstir.fitting.apparent.window_viscosity", simulated)
     t = np.linspace(0.0, 3.0, 601)
     phase = 2.0 * t**2  # rad: no 0.3 s at one speed (as above)
     unsteady = path_recording(t, 0.015 * np.cos(phase), 0.015 * np.sin(phase))

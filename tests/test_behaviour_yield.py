@@ -11,9 +11,10 @@ import torch
 
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.behaviour.joint import (INDEX_SHIFTS, PASTE_SHARES, JointProblem, index_starts, paste_start,
-                                     screened_starts)
-from diffstir.behaviour.windows import speed_windows
-from diffstir.identify import FitModel, StirProblem
+                                      screened_starts)
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.problem import StirProblem
+from diffstir.fitting.windows import speed_windows
 from diffstir.parallel import Workers
 from diffstir.recording import Recording
 from diffstir.rheology import FlowCurve, make_law

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
-from diffstir.diagnose.base import base_from_identification, law_from_report, simulate_base
-from diffstir.diagnose.candidates import (PHYSICS_CANDIDATES, SENSOR_CANDIDATES, SLIP_STARTS, CachedReplay, Context,
-                                         PhysicsModel, check_names, scaled_law)
-from diffstir.diagnose.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAINED, NONE, REANCHORS,
-                                      SOUND_SPEED_TOLERANCE, ScaleReadings, fit_physics, fit_sensor, rank,
-                                      reachable_rss, refrozen, screened_start, second_budget)
-from diffstir.diagnose.locate import harmonic_shares, kinematics, phases, reading_lag
-from diffstir.identify import StirProblem, Windows
+from diffstir.diagnosis import diagnose, needs_diagnosis, write_diagnosis
+from diffstir.diagnosis.base import base_from_identification, law_from_report, simulate_base
+from diffstir.diagnosis.candidates import (PHYSICS_CANDIDATES, SENSOR_CANDIDATES, SLIP_STARTS, CachedReplay, Context,
+                                           PhysicsModel, check_names, scaled_law)
+from diffstir.diagnosis.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAINED, NONE, REANCHORS,
+                                        SOUND_SPEED_TOLERANCE, ScaleReadings, fit_physics, fit_sensor, rank,
+                                        reachable_rss, refrozen, screened_start, second_budget)
+from diffstir.diagnosis.locate import harmonic_shares, kinematics, phases, reading_lag
+from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.lab import first_order_lag, stirring_programme
 from diffstir.mpm import SimConfig
 from diffstir.recording import CupGeometry, Recording, RodGeometry, SensorSpec, sensor_reading_np

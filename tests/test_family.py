@@ -1,13 +1,13 @@
-"""The class a fitted law shows over the probed shear rates (diffstir.identify.family)."""
+"""The class a fitted law shows over the probed shear rates (diffstir.fitting.family)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from diffstir.identify import FitModel
-from diffstir.identify.family import law_family
-from diffstir.identify.uncertainty import Uncertainty
+from diffstir.fitting.family import law_family
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.uncertainty import Uncertainty
 
 BAND = (1.0, 4.0)  # 1/s: the probed band of the non-Newtonian benchmark's stir
 RATE = 2.0  # 1/s: its effective shear rate

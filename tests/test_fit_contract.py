@@ -1,4 +1,4 @@
-"""The contract of every problem the fitter accepts (``identify.FitProblem``): each implementation has its members
+"""The contract of every problem the fitter accepts (``fitting.FitProblem``): each implementation has its members
 with the protocol's signatures, and a fit runs through each, the diagnosis's cached replay with a sound speed that
 follows the stir (``SimConfig.compressibility``, the diagnosis's default ``sim: coarse2d``) included."""
 
@@ -12,9 +12,11 @@ import yaml
 
 from diffstir.apps import CONF_DIR
 from diffstir.behaviour.joint import JointProblem
-from diffstir.behaviour.windows import SpeedWindow
-from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel
-from diffstir.identify import FitModel, FitProblem, StirProblem, Windows, fit_model
+from diffstir.diagnosis.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.optimise import fit_model
+from diffstir.fitting.problem import FitProblem, StirProblem, Windows
+from diffstir.fitting.windows import SpeedWindow
 from diffstir.recording import CupGeometry, Recording, RodGeometry, SensorSpec
 from diffstir.rheology import Newtonian
 from diffstir.trajectory import circle

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from diffstir.identify import StirProblem, Windows, identify
-from diffstir.identify.problem import DEAD_START_CHANCE, dead_start
+from diffstir.fitting.problem import DEAD_START_CHANCE, StirProblem, Windows, dead_start
+from diffstir.identification import identify
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, load_recording,
                                 sensor_reading_np)

@@ -11,16 +11,17 @@ import pytest
 import torch
 
 from diffstir.errors import OutputError
-from diffstir.identify import FitModel, identify
-from diffstir.identify.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
+from diffstir.fitting.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
                                       newtonian_embedding)
-from diffstir.identify.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
-from diffstir.identify.problem import StirProblem, Windows
-from diffstir.identify.selection import bic, select
-from diffstir.identify.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
-from diffstir.mpm import SimConfig
-from diffstir.identify.nuisance import lag_response
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.nuisance import lag_response
+from diffstir.fitting.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
+from diffstir.fitting.problem import StirProblem, Windows
+from diffstir.fitting.selection import bic, select
+from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
+from diffstir.identification import identify
 from diffstir.lab import SensorModel
+from diffstir.mpm import SimConfig
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, sensor_reading_np,
                                 trajectory_at)
 from diffstir.recording.digest import recording_digest
@@ -430,7 +431,7 @@ def test_newtonian_viscosity_is_recovered_within_its_interval(newtonian_identifi
     # the fit's residual is the sensor noise
     assert unc.residual_std == pytest.approx(NOISE, rel=0.3)
     assert result.resolvable["viscosity"]
-    # the reading's size alone (identify.magnitude) finds it too, its interval holding the 3 % model error
+    # the reading's size alone (fitting.magnitude) finds it too, its interval holding the 3 % model error
     magnitude = result.magnitude
     assert magnitude["resolved"] and magnitude["ci95"][0] < TRUE_ETA < magnitude["ci95"][1]
 
@@ -545,7 +546,7 @@ def test_a_checkpoint_of_another_recording_is_refused_unless_overwritten(newtoni
 
 
 def test_report_files(newtonian_identification):
-    from diffstir.identify.report import write_report
+    from diffstir.identification.report import write_report
 
     result, out = newtonian_identification
     paths = write_report(result, out)
@@ -569,7 +570,7 @@ def test_report_files(newtonian_identification):
     assert correction["flow_index"] == pytest.approx(1.0, abs=1e-5)
     assert f"C = {correction['factor']:.4g}" in paths["md"].read_text() and report["force_scale"] == "F' h C"
     # the paper's extruded slice, fit.slice_correction=false: said in the report, no correction given
-    from diffstir.identify.report import markdown
+    from diffstir.identification.report import markdown
 
     plain = {**report, "slice_correction": None, "force_scale": "F' h (fit.slice_correction=false)"}
     assert "F = F' h (fit.slice_correction=false)" in markdown(plain)
@@ -585,7 +586,7 @@ def test_report_files(newtonian_identification):
 def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_identification):
     """A covariance singular in one direction (the power law's two columns nearly collinear, 1e-7 apart) gives
     intervals such as [4e-284, 1e+277]: the report gives null with identifiable false and says so in words."""
-    from diffstir.identify.report import markdown
+    from diffstir.identification.report import markdown
 
     result, _ = newtonian_identification
     fit, train = result.fits["power_law"], result.problem.train
@@ -605,7 +606,7 @@ def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_i
 def test_progress_counts_simulations_against_an_estimate_revised_as_fits_finish():
     """The bar's total is what the tasks are expected to spend, each finished task counting what it spent; its
     loss is the best so far of the law (no simulation: the tracker's arithmetic)."""
-    from diffstir.identify.progress import Progress, fit_simulations
+    from diffstir.fitting.progress import Progress, fit_simulations
 
     assert fit_simulations(4, 6, reuses_jacobian=False) == 6 + 2 * 4  # start, 4 columns, steps, final Jacobian
     assert fit_simulations(4, 2, reuses_jacobian=True) == 3
@@ -749,9 +750,9 @@ def test_models_fitted_in_parallel_processes_equal_those_fitted_in_one(newtonian
 
 
 def test_a_job_that_fails_in_a_worker_raises_in_the_caller(newtonian_recording):
-    from diffstir.identify.jobs import FitJob
+    from diffstir.fitting.jobs import FitJob
     from diffstir.parallel import Workers
-    from diffstir.identify.nuisance import SensorNuisance
+    from diffstir.fitting.nuisance import SensorNuisance
 
     problem = StirProblem(newtonian_recording, FAST, 1000.0, Windows.of(newtonian_recording, 0.1, 0.0))
     events = []
@@ -770,7 +771,7 @@ def test_unknown_laws_are_refused_before_any_fitting(newtonian_recording):
 
 def test_an_interrupted_start_resumes_from_its_last_iterate_and_finished_starts_are_kept(newtonian_recording,
                                                                                          tmp_path, monkeypatch):
-    from diffstir.identify.jobs import FitJob
+    from diffstir.fitting.jobs import FitJob
 
     checkpoint = tmp_path / "checkpoint.json"
     kwargs = dict(config=FAST, density=1000.0, window=0.2, holdout_fraction=0.25, baseline=False, max_iterations=2,
@@ -807,7 +808,7 @@ def test_an_inertia_dominated_stir_is_reported_as_such():
     """A drag F = F_v + F_i with F_v ∝ η: d F / d ln η = F_v, so the viscous share (J·p)/(p·p) is F_v / F."""
     from types import SimpleNamespace
 
-    from diffstir.identify.pipeline import VISCOUS_SHARE_FLOOR, _resolvable
+    from diffstir.identification.pipeline import VISCOUS_SHARE_FLOOR, _resolvable
 
     t = np.linspace(0.0, 1.0, 200)
     inertial = 0.02 * np.sin(2 * np.pi * t)  # N

@@ -14,12 +14,11 @@ import torch
 from omegaconf import OmegaConf
 
 from diffstir.density import estimate_recording_density
-from diffstir.lab import (
-    Fluid, HiddenPhysics, HiddenPhysicsSpec, SensorModel, TemperatureDrift, Thixotropy, Viscoelasticity, dead_band,
-    density_block, first_order_lag, make_fluid_law, one_sided, programme_speed, quantise, stirring_programme,
-    synthesise, truth_path, write_lab_recording,
-)
+from diffstir.lab import (Fluid, HiddenPhysicsSpec, SensorModel, dead_band, density_block, first_order_lag,
+                          make_fluid_law, one_sided, programme_speed, quantise, stirring_programme, synthesise,
+                          truth_path, write_lab_recording)
 from diffstir.mpm import SimConfig, StirringSimulator
+from diffstir.mpm.hidden_physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from diffstir.recording import load_recording
 from diffstir.rheology import Newtonian, Tabulated
 from diffstir.rig import Cup, Rig, Rod

@@ -1,4 +1,4 @@
-"""The Newtonian viscosity from the reading's size (``identify.magnitude``) against closed forms."""
+"""The Newtonian viscosity from the reading's size (``fitting.magnitude``) against closed forms."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.identify.magnitude import RESOLVED_FACTOR, expected_magnitude, magnitude_estimate
+from diffstir.fitting.magnitude import RESOLVED_FACTOR, expected_magnitude, magnitude_estimate
 from diffstir.mpm import SimConfig
 from diffstir.recording import SensorSpec
 

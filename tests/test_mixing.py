@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.identify.uncertainty import Z95
+from diffstir.fitting.uncertainty import Z95
 from diffstir.lab import Fluid, SensorModel, stirring_programme
-from diffstir.lab.blend import (Blend, BlendMaterial, cell_concentration, initial_concentration, mix,
-                                synthesise_blend)
-from diffstir.mixing import blend_range, fit_approach, implied_alpha, lederer_roegiers
+from diffstir.lab.blend import Blend, BlendMaterial, cell_concentration, initial_concentration, mix, synthesise_blend
+from diffstir.mixing import fit_approach
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import save_recording
 from diffstir.rheology import Newtonian
+from diffstir.rheology.blending import blend_range, implied_alpha, lederer_roegiers
 from diffstir.rig import Rig
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=1.0, dt_max=0.004, viscosity_cap=5.0)  # as in test_behaviour

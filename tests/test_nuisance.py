@@ -1,4 +1,4 @@
-"""The sensor's offset and lag as nuisances of a fit (diffstir.identify.nuisance)."""
+"""The sensor's offset and lag as nuisances of a fit (diffstir.fitting.nuisance)."""
 
 import math
 
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.identify import FitModel, fit_model
-from diffstir.identify.nuisance import NO_NUISANCE, NUISANCES, SensorNuisance, lag_response
+from diffstir.fitting.models import FitModel
+from diffstir.fitting.nuisance import NO_NUISANCE, NUISANCES, SensorNuisance, lag_response
+from diffstir.fitting.optimise import fit_model
 from diffstir.mpm import SimConfig
 from diffstir.recording import SensorSpec
 

@@ -8,11 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.recording import (
-    CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, first_order_response, resample_force,
-    sensor_reading, sensor_reading_np, simulated_reading, trajectory_at,
-)
-from diffstir.recording import sensor as sensor_module
+from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, first_order_response,
+                                resample_force, sensor as sensor_module, sensor_reading, sensor_reading_np,
+                                simulated_reading, trajectory_at)
 from diffstir.recording.sensor import FORCE_EPS, VELOCITY_EPS, sensor_history
 
 F = torch.tensor([[3.0, 4.0], [-2.0, 0.0], [1.0, 1.0], [0.0, -0.5]], dtype=torch.float64)

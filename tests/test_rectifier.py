@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.identify.initial import ViscosityLadder
+from diffstir.fitting.initial import ViscosityLadder
 from diffstir.mpm import SimConfig
 from diffstir.rectifier import pairs as pairs_module
-from diffstir.rheology import LAWS
 from diffstir.rectifier.apply import load_rectifier, refine
 from diffstir.rectifier.model import Rectifier
 from diffstir.rectifier.pairs import LAW_DRAWS, PairDesign, collect, draw_fluid, run_shard
 from diffstir.rectifier.training import PairData, evaluate, held_out_verdict, split_fluids, train
+from diffstir.rheology import LAWS
 
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)
 

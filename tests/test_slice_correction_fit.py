@@ -1,5 +1,5 @@
 """The slice correction inside the fit and the virtual lab: a 2-D slice's force per length stands for the rod in the
-recording's cup as F = F' h C (``diffstir.slice_correction``, ``identify.problem``)."""
+recording's cup as F = F' h C (``diffstir.slice_correction``, ``fitting.problem``)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.identify.problem import StirProblem
-from diffstir.identify.uncertainty import force_error
+from diffstir.fitting.problem import StirProblem
+from diffstir.fitting.uncertainty import force_error
 from diffstir.lab import Fluid, SensorModel
 from diffstir.lab.synth import read_truth, simulate_truth
 from diffstir.mpm import SimConfig

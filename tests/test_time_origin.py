@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.identify.problem import StirProblem
+from diffstir.fitting.problem import StirProblem
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import (CupGeometry, Recording, RecordingWarning, RodGeometry, SensorSpec, load_recording,
                                 save_recording)

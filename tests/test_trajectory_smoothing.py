@@ -16,7 +16,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.interpolate import make_smoothing_spline
 
-from diffstir.behaviour import speed_windows
+from diffstir.fitting.windows import speed_windows
 from diffstir.lab.programme import programme_speed, stirring_programme
 from diffstir.recording import CupGeometry, Recording, RecordingWarning, RodGeometry, SensorSpec
 from diffstir.recording.smoothing import smooth_path, smoothing_spline

@@ -8,7 +8,7 @@ from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.mpm.boundaries import is_solid, rod_sdf
 from diffstir.mpm.materials import volumetric_stress
 from diffstir.mpm.step import MASS_FLOOR, p2g
-from diffstir.mpm.walls import wall_impulses
+from diffstir.mpm.wall_pressure import wall_impulses
 from diffstir.rheology import Newtonian
 from diffstir.rig import Rig
 from diffstir.trajectory import stationary

@@ -14,9 +14,9 @@ from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig
 
 from diffstir.apps import Run, check_at_least, check_choices, check_processes, command, config_workers
-from diffstir.diagnose import CANDIDATES, diagnose, write_diagnosis
+from diffstir.diagnosis import CANDIDATES, diagnose, write_diagnosis
 from diffstir.errors import ConfigError, OutputError
-from diffstir.identify import identify
+from diffstir.identification import identify
 from diffstir.recording import load_recording
 
 

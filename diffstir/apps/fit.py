@@ -14,17 +14,14 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import (
-    CONF_DIR, Run, check_at_least, check_choice, check_choices, check_processes, command, config_workers,
-)
+from diffstir.apps import (CONF_DIR, Run, check_at_least, check_choice, check_choices, check_processes, command,
+                           config_workers)
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.behaviour.pipeline import SLOPE_TESTS
 from diffstir.errors import ConfigError, OutputError
-from diffstir.identify import identify
-from diffstir.identify.nuisance import NUISANCES
-from diffstir.identify.uncertainty import checked_model_error
-from diffstir.identify.report import write_report
-from diffstir.identify.selection import CRITERIA
+from diffstir.fitting import CRITERIA, NUISANCES, checked_model_error
+from diffstir.identification import identify
+from diffstir.identification.report import write_report
 from diffstir.mixing import analyse_mixing, time_windows, write_mixing_report
 from diffstir.recording import load_recording
 from diffstir.rheology import LAWS
@@ -97,7 +94,7 @@ def check_fit_settings(cfg: DictConfig) -> None:
 def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
     """``diagnose=true``: when the selected fit's residual is larger than the noise and structured, name the
     missing physics on the coarse (or the fit's) resolution into ``out/diagnosis/`` (docs/diagnosis.md)."""
-    from diffstir.diagnose import diagnose, needs_diagnosis, write_diagnosis
+    from diffstir.diagnosis import diagnose, needs_diagnosis, write_diagnosis
 
     check = needs_diagnosis(result)
     if not check["needed"]:

@@ -39,7 +39,7 @@ fitted (a curved flow curve inflates the straight line's χ² with misfit, not n
 4. **Slope from the joint fit** (``with_slope_estimate``; ``slope_test`` in ``pipeline``). With the power law
    τ = k γ̇ⁿ among the joint laws, its index is a second read of the slope, b_J = n − 1, with the standard error
    s_J of n from the joint fit's Laplace covariance, which holds the simulator's relative force error σ_m as an
-   amplitude error of each speed window, independent between windows (``identify.uncertainty.laplace``), as the
+   amplitude error of each speed window, independent between windows (``fitting.uncertainty.laplace``), as the
    points' intervals hold it. The points are Newtonian-equivalent viscosities, each read at one effective shear
    rate, where the fluid around the rod is sheared over a band of rates; the joint fit simulates the law itself
    at every speed, and the windows' waveforms, not only their levels, pin its n. The two reads are combined
@@ -65,7 +65,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from ..identify.uncertainty import Z95
+from ..fitting import Z95
 from ..rheology import FlowCurve, fit_flow_curve, has_yield_stress
 
 CLASSES = ("newtonian", "shear_thinning", "shear_thickening", "yield_stress")

@@ -3,9 +3,9 @@
 A single speed probes a narrow band of shear rates, so Carreau's and Cross's λ and η_∞ stay unidentifiable
 (docs/identification.md); the windows of several speeds together span the band where the law bends. Each law starts
 from its fit to the per-speed apparent viscosities (``rheology.fit_flow_curve`` on (γ̇_i, η_i γ̇_i) with weights
-1/σ_i²; with no more points than parameters, from ``identify.initial.initial_model``), or from that curve with its
+1/σ_i²; with no more points than parameters, from ``fitting.initial.initial_model``), or from that curve with its
 index n shifted by ``INDEX_SHIFTS`` (``index_starts``), whichever reads the windows closest after scaling its
-stress (``screened_starts``), and takes a few Gauss-Newton steps through the simulator (``identify.fit_model``) on
+stress (``screened_starts``), and takes a few Gauss-Newton steps through the simulator (``fitting.fit_model``) on
 the readings of all windows. The points' slope is bent by the fitting grid's error at the slow speeds, and the
 finite-difference Jacobian through the fast windows' jitter is too noisy to walk far from it: on the 5 mm grid the
 power law of the n = 1.1 thickener and of castor oil stopped within 0.03 of the points' index, 0.13 and 0.1 short of
@@ -41,19 +41,12 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..identify import FitModel, FitResult, StirProblem, Windows
-from ..identify.jobs import FitJob, ReadingJob
-from ..identify.initial import YIELD_SHARES, initial_model
-from ..identify.nuisance import NO_NUISANCE
-from ..identify.progress import fit_simulations
-from ..identify.selection import bic, rank
-from ..identify.uncertainty import Uncertainty, laplace
+from ..fitting import (NO_NUISANCE, YIELD_SHARES, FitJob, FitModel, FitResult, ReadingJob, SpeedWindow, StirProblem,
+                       Uncertainty, ViscosityPoint, Windows, bic, fit_simulations, initial_model, laplace, rank)
 from ..mpm import SimConfig
 from ..parallel import Workers
 from ..report_files import finite_or_none
 from ..rheology import FlowCurve, fit_flow_curve, has_yield_stress, within_bounds
-from .apparent import ViscosityPoint
-from .windows import SpeedWindow
 
 #: Gauss-Newton iterations of each law's best start from a fresh finite-difference Jacobian, after its budget.
 #: The Broyden updates that carry the first Jacobian through the budget converge slowly, and laws compared by BIC
@@ -63,7 +56,7 @@ POLISH_ITERATIONS = 2
 
 #: Shifts of a law's index n [1] in its first start screen (``index_starts``): the size by which the 5 mm grid's
 #: joint power-law fits stopped short of the truth's index (module docstring), within the trust region's first
-#: reach in an index (``identify.optimise.TRUST_RADIUS``, 0.25).
+#: reach in an index (``fitting.optimise.TRUST_RADIUS``, 0.25).
 INDEX_SHIFTS = (-0.15, 0.15)
 
 #: Shares of the lowest speed's stress that a yield-stress law's paste starts give its yield stress [1]: a paste
@@ -84,7 +77,7 @@ LIQUID_START_ITERATIONS = 1
 
 
 class JointProblem:
-    """The windows of several recordings as one problem for ``identify.fit_model`` (an ``identify.FitProblem``):
+    """The windows of several recordings as one problem for ``fitting.fit_model`` (a ``fitting.FitProblem``):
     one simulation per recording, from its first sample to its last window's end, whose readings inside the windows
     are concatenated.
 
@@ -233,8 +226,8 @@ def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: Sim
     [1/s] are ``shear_rates``, at once (module docstring); the laws side by side in ``workers`` processes. Each
     law's covariance holds the simulator's relative force error ``model_error`` σ_m as an error of each window's
     amplitude and ``inertial_error`` σ_i as one of its inertial part, independent between windows, as the points'
-    intervals do (``identify.uncertainty.laplace``).
-    ``report`` receives the fits' events (``identify.jobs``), whose keys start with the law's name."""
+    intervals do (``fitting.uncertainty.laplace``).
+    ``report`` receives the fits' events (``fitting.jobs``), whose keys start with the law's name."""
     if not models:
         raise ValueError("behaviour.joint_models is empty; name at least one law of diffstir.rheology.LAWS")
     problem = JointProblem([p.window for p in points], config, density, [p.loss for p in points])

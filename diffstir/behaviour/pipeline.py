@@ -20,20 +20,16 @@ from functools import partial
 
 import numpy as np
 
-from ..density import estimate_recording_density
-from ..identify import FitModel
-from ..identify.pipeline import configured_density
-from ..identify.progress import Progress
-from ..identify.uncertainty import INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Z95
+from ..density import combined_density
+from ..fitting import (INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, PAUSE_SPEED, Z95, FitModel, Progress, ViscosityPoint,
+                       WindowsJob, speed_windows, window_event, window_simulations)
 from ..mpm import SimConfig
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
 from ..rheology import has_yield_stress
-from .apparent import ViscosityPoint, WindowsJob, window_event, window_simulations
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
 from .joint import JointFit, joint_fit, joint_simulations, yield_share
-from .windows import PAUSE_SPEED, speed_windows
 
 #: Laws fitted to all speeds at once by default.
 JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
@@ -94,18 +90,17 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
         model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
             (``apparent``) and the joint laws' covariances; the default is the fitting grid's
-            (``identify.uncertainty``), raise it for a coarser one (``COARSE_FORCE_ERROR`` for
+            (``fitting.uncertainty``), raise it for a coarser one (``COARSE_FORCE_ERROR`` for
             ``conf/sim/coarse2d.yaml``).
         inertial_error: the relative 1-σ error σ_i of the inertial part of ``config``'s simulated force, in the
-            same intervals and covariances (``identify.uncertainty``; the default is the fitting grid's).
+            same intervals and covariances (``fitting.uncertainty``; the default is the fitting grid's).
         slope_test: ``"combined"``, the points' slope and the joint power law's n − 1 combined, their error
             scaled by their disagreement (``classify``, 4; the points alone without a joint power law);
             ``"points"``, the slope of the per-speed points (``classify``, 1); ``"joint_index"``, the joint power
-            law's n − 1 alone (needs the power law in ``joint_models``; on the 5 mm grid its interval was 4-8
-            times narrower than its error on two Newtonian liquids, docs/accuracy.md).
+            law's n − 1 alone (needs the power law in ``joint_models``).
         workers: processes that run the recordings' windows side by side (``WindowsJob``: a recording's windows in
             order), then the joint laws (``joint.joint_fit``); 1: in this process.
-        progress: show a progress bar of the simulations (``identify.progress``): one task per window and one
+        progress: show a progress bar of the simulations (``fitting.progress``): one task per window and one
             per joint law.
     """
     started = time.perf_counter()
@@ -152,7 +147,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
 
 
 def _joint_evaluation(tracker: Progress, event: tuple) -> None:
-    """A joint fit's event (``identify.jobs``) counted against its law's task."""
+    """A joint fit's event (``fitting.jobs``) counted against its law's task."""
     kind, _stage, key, *data = event
     if kind == "evaluation":
         law = key.split("/")[0]
@@ -199,14 +194,3 @@ def reported_joint_index(summary: dict) -> SlopeEstimate | None:
     return SlopeEstimate(law["params"]["n"] - 1.0, (hi - lo) / (2.0 * Z95))
 
 
-def combined_density(recordings: list[Recording], density: float | None) -> dict:
-    """The inverse-variance weighted mean of the recordings' Archimedes densities [kg/m³] with its 95 % interval,
-    or ``density`` [kg/m³] when no recording has a density block."""
-    estimates = [estimate_recording_density(r) for r in recordings if r.density is not None]
-    if estimates:
-        w = np.array([1.0 / e.std**2 for e in estimates])
-        value = float(np.sum(w * [e.value for e in estimates]) / w.sum())
-        std = float(1.0 / math.sqrt(w.sum()))
-        return {"value": value, "ci95": [value - 1.96 * std, value + 1.96 * std], "unit": "kg/m^3",
-                "source": f"archimedes ({len(estimates)} recordings)"}
-    return configured_density(density, f"{recordings[0].source('yaml')}: no recording has a density block")

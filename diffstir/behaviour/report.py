@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..identify.report import format_bound
+from ..fitting import log_viscosity_interval
 from ..plots import pyplot, save_figure, viscosity_band
-from ..report_files import write_summary
+from ..report_files import format_bound, write_summary
 from .pipeline import Behaviour
 
 
@@ -97,7 +97,8 @@ def plot(result: Behaviour, out: Path) -> dict[str, Path]:
     if result.joint is not None:
         for name, fit in result.joint.fits.items():
             label = f"{name} (joint fit)" + (" *" if name == result.joint.selected else "")
-            viscosity_band(ax, grid, fit.model, fit.theta, result.joint.uncertainty[name].covariance, label, 0.12)
+            band = log_viscosity_interval(fit.model, fit.theta, result.joint.uncertainty[name].covariance, grid)
+            viscosity_band(ax, grid, *band, label, 0.12)
     ax.set_xlabel("effective shear rate [1/s]")
     ax.set_ylabel("apparent viscosity [Pa·s]")
     ax.legend(fontsize=7)

@@ -12,28 +12,21 @@ together (``Blend``; docs/mixing.md). See docs/virtual-lab.md.
 from diffstir.lab.blend import Blend, BlendMaterial, simulate_blend, synthesise_blend
 from diffstir.lab.fe_truth import FiniteElementTruth
 from diffstir.lab.fluid import Fluid, make_fluid_law
-from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from diffstir.lab.programme import Segment, programme_speed, stirring_programme
 from diffstir.lab.sensor import SensorModel, dead_band, first_order_lag, one_sided, quantise
-from diffstir.lab.synth import (
-    HiddenPhysicsSpec, LabRecording, TruthSimulation, density_block, read_truth, simulate_truth, synthesise,
-    truth_path, write_lab_recording,
-)
+from diffstir.lab.synth import (HiddenPhysicsSpec, LabRecording, TruthSimulation, density_block, read_truth,
+                                simulate_truth, synthesise, truth_path, write_lab_recording)
 
 __all__ = [
     "Blend",
     "BlendMaterial",
     "FiniteElementTruth",
     "Fluid",
-    "HiddenPhysics",
     "HiddenPhysicsSpec",
     "LabRecording",
     "Segment",
     "SensorModel",
-    "TemperatureDrift",
-    "Thixotropy",
     "TruthSimulation",
-    "Viscoelasticity",
     "dead_band",
     "density_block",
     "first_order_lag",

@@ -3,7 +3,7 @@
 Every particle carries the volume fraction c ∈ [0, 1] of fluid 1. Fluid 1 starts in one region (``layout``:
 ``core``, the central disc; ``annulus``, along the wall; ``half``, the side x < x_φ), chosen by particle count so
 that its volume fraction is exactly φ. The cell viscosity follows the Lederer-Roegiers rule
-(``diffstir.mixing.rule``) of the two laws at the cell's shear rate and concentration.
+(``diffstir.rheology.blending``) of the two laws at the cell's shear rate and concentration.
 
 Macro-mixing is the flow itself: particles carry c along as the rod stretches and folds the fluid. What the grid
 cannot resolve (striations thinner than a cell, then molecular diffusion across them) is the IEM micro-mixing
@@ -42,10 +42,10 @@ from torch import Tensor, nn
 from diffstir.lab.fluid import Fluid
 from diffstir.lab.sensor import SensorModel
 from diffstir.lab.synth import HiddenPhysicsSpec, LabRecording, TruthSimulation, check_programme, read_truth
-from diffstir.mixing.rule import lederer_roegiers
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.mpm.grid import quadratic_stencil
 from diffstir.mpm.materials import deviatoric_rate_of_strain, shear_rate
+from diffstir.rheology.blending import lederer_roegiers
 from diffstir.rig import Rig
 from diffstir.slice_correction import trajectory_correction
 from diffstir.trajectory import Trajectory

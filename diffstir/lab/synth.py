@@ -26,13 +26,11 @@ from diffstir.density import DEPTH_RESOLUTION
 from diffstir.errors import ConfigError
 from diffstir.lab.fe_truth import FiniteElementTruth, fe_stir_force
 from diffstir.lab.fluid import Fluid
-from diffstir.lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from diffstir.lab.sensor import SensorModel, quantise
 from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.recording import (
-    CupGeometry, DensityMeasurement, Recording, RecordingError, RodGeometry, load_recording, save_recording,
-    validate_recording,
-)
+from diffstir.mpm.hidden_physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
+from diffstir.recording import (CupGeometry, DensityMeasurement, Recording, RecordingError, RodGeometry, load_recording,
+                                save_recording, validate_recording)
 from diffstir.report_files import to_json, write_text_atomically
 from diffstir.rig import Rig
 from diffstir.slice_correction import trajectory_correction

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..behaviour import ViscosityPoint, combined_density
-from ..identify.uncertainty import MODEL_FORCE_ERROR
+from ..density import combined_density
+from ..fitting import MODEL_FORCE_ERROR, ViscosityPoint
 from ..mpm import SimConfig
 from ..plots import pyplot, save_figure
 from ..recording import Recording
 from ..report_files import write_summary
-from .rule import blend_range, implied_alpha
+from ..rheology.blending import blend_range, implied_alpha
 from .track import Approach, fit_approach, time_windows, track_viscosity
 
 

@@ -16,7 +16,7 @@ covariance of (Δ, ln τ): ∂t_h/∂Δ = τ/Δ, ∂t_h/∂ln τ = t_h − t_0 (
 the approach cannot describe (flat, Δ and τ not separable, or τ on a bound) gets the weighted mean of ln η as its
 plateau, t_h = t_0 and τ unknown; the report's time course shows whether that is a plateau or a drift.
 
-The simulator's own force error (``behaviour.apparent``: σ_m / e in ln η) is common to every window of one speed:
+The simulator's own force error (``fitting.apparent``: σ_m / e in ln η) is common to every window of one speed:
 it does not average out over the windows, so the plateau's interval adds it in full, in quadrature, while the
 half-width that decides homogeneity is the noise's alone (a bias of the simulator moves the whole course, not its
 shape).
@@ -32,11 +32,9 @@ from functools import partial
 import numpy as np
 from scipy import optimize
 
-from ..behaviour import SpeedWindow, ViscosityPoint, speed_windows
-from ..behaviour.apparent import WindowsJob, window_event, window_simulations
 from ..errors import ConfigError
-from ..identify.progress import Progress
-from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95
+from ..fitting import (MODEL_FORCE_ERROR, Z95, Progress, SpeedWindow, ViscosityPoint, WindowsJob, speed_windows,
+                       window_event, window_simulations)
 from ..mpm import SimConfig
 from ..recording import Recording
 
@@ -178,7 +176,7 @@ def track_viscosity(windows: list[SpeedWindow], config: SimConfig, density: floa
                     progress: bool = False) -> list[ViscosityPoint]:
     """The apparent viscosity of each of a recording's ``windows`` (``time_windows``; module docstring), with
     ``model_error`` the relative force error of ``config`` (``behaviour.window_viscosity``); ``progress`` shows a
-    progress bar of the simulations, one task per window (``identify.progress``)."""
+    progress bar of the simulations, one task per window (``fitting.progress``)."""
     expected = {w.label: window_simulations(k > 0, iterations) for k, w in enumerate(windows)}
     with Progress(expected, bar=progress, label="mixing") as tracker:
         job = WindowsJob("windows", "mixing", windows, config, density, iterations, model_error)

@@ -29,7 +29,7 @@ class SimConfig:
             number, is what compresses the fluid: at 1 m/s a 1 Pa·s stir at 0.1 m/s compresses it by 13 % and reads
             27 % low against an incompressible reference (docs/validation.md).
         rollout_sound_speed: the sound speed of every rollout [m/s], held fixed in place of the ``compressibility``
-            rule (a fit holds the one its starting law gets: ``identify.StirProblem.frozen``), or None. The fluid
+            rule (a fit holds the one its starting law gets: ``fitting.StirProblem.frozen``), or None. The fluid
             settles at ``sound_speed`` either way, so that a rollout at a held sound speed starts from the state the
             rule's rollout starts from (on the 5 mm grid a stir at 0.6 m/s read 12 % apart from two states settled
             at 1 and 3.6 m/s, docs/identification.md step 5).

@@ -1,177 +1,97 @@
-"""Building a scene: the grid around the cup, the fluid's particles, and its settled state at rest (cached)."""
+"""The scene of a simulation: what stays fixed over a rollout (grid, solids, particles' mass and volume)."""
 
 from __future__ import annotations
 
-import hashlib
-import json
-import math
-import os
-from dataclasses import asdict, replace
-from pathlib import Path
+from dataclasses import dataclass
 
-import torch
-from torch import nn
+from torch import Tensor
 
-from ..rig import Rig
-from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, is_solid, rod_sdf, rod_shape
-from .config import SimConfig
-from .grid import Grid, flat_index
-from .materials import deviatoric_rate_of_strain
-from .packing import FINE, cup_solid_mass, rod_fill_points
+from ..rig import Cup
+from .boundaries import GhostBand, RodShape, RodWindow
+from .grid import Grid
 from .projection import CellMatrices
-from .state import State
-from .step import Scene, step
-from .transfer import use_fused
 from .viscous import CellStencil
 from .walls import WallParticles
 
-PADDING = 3  # cells of grid beyond the cup on every side: the ghost band and the stencil's reach
 
+@dataclass(frozen=True)
+class Scene:
+    """What stays fixed over a rollout: grid, solids, particle mass and volume, bulk modulus, gravity.
 
-def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
-    """The static part of a simulation of ``rig`` filled with fluid of ``density`` [kg/m³]."""
-    if not 1.0 <= density <= 3.0e4:
-        raise ValueError(f"density = {density!r}; expected a fluid density in kg/m³ (water is 1000)")
-    dtype, device, dx, d = config.torch_dtype, config.torch_device, config.dx, config.dim
-    cup = rig.cup
-    if cup.radius / dx < 4:
-        raise ValueError(f"sim.dx = {dx} m is too coarse for a cup of radius {cup.radius} m (need >= 4 cells)")
-    lo = [-cup.radius - PADDING * dx] * 2
-    hi = [cup.radius + PADDING * dx] * 2
-    if d == 3:
-        lo.append(-PADDING * dx)
-        hi.append(cup.fill_height + config.headroom + PADDING * dx)
-    shape = tuple(int(math.ceil((h - l) / dx)) + 1 for l, h in zip(lo, hi))
-    grid = Grid(origin=torch.tensor(lo, dtype=dtype, device=device), shape=shape, dx=dx)
-    nodes = grid.node_positions()
-    cup_phi, cup_normal = cup_sdf(cup, nodes)
-    # the band's inner edge lies between node layers, so that round-off decides no node's membership
-    reach = is_solid(cup_phi, dx) & (cup_phi > -(BAND + 1.5) * dx)
-    bulk_modulus = density * config.sound_speed**2
-    gravity = torch.zeros(d, dtype=dtype, device=device)
-    if d == 3:
-        gravity[2] = -rig.gravity
-    spacing = dx / config.particles_per_cell
-    cells_volume = spacing ** d
-    offsets = grid.stencil_offsets()
-    cup_nodes = torch.nonzero(reach).squeeze(1)
-    rod = rod_shape(rig.rod, dx)
-    mass_row = torch.zeros(1, 1, d + 1, dtype=dtype, device=device)
-    mass_row[..., d] = density * cells_volume
-    # a particle's base node (floor(x/dx − 1/2)) and its stencil's last node (+2) must lie on the grid
-    highest = grid.origin + (torch.tensor(shape, dtype=dtype, device=device) - 1.5001) * dx
-    bounds = torch.stack([grid.origin + 0.5001 * dx, highest])
-    offset_index = flat_index(offsets, grid.strides())
-    rod_spacing = spacing / FINE
-    rod_height = rig.rod.immersion_depth + config.headroom + 2 * dx  # m above its tip that its particles fill
-    cells = CellStencil.of(grid)
-    return Scene(
-        grid=grid, offset_index=offset_index,
-        stencil_points=torch.cat([offsets, torch.ones(len(offsets), 1, dtype=torch.int64, device=device)], 1).to(dtype),
-        eye=torch.eye(d, dtype=dtype, device=device), mass_row=mass_row, cells=cells,
-        particle_bounds=bounds,
-        strides=grid.strides(), nodes=nodes, cup=cup, cup_phi=cup_phi,
-        cup_band=ghost_band(grid, cup_nodes, nodes[cup_nodes], cup_phi[cup_nodes], cup_normal[cup_nodes],
-                            slip=cup.wall == "slip"),
-        rod=rod, rod_window=RodWindow.of(grid, rod.radius), rod_slip=rig.rod.wall == "slip",
-        rod_slip_length=rig.rod.slip_length,
-        particle_mass=density * cells_volume, particle_volume=cells_volume, node_mass=density * dx**d,
-        bulk_modulus=bulk_modulus,
-        gravity=gravity, viscosity_cap=config.viscosity_cap,
-        flip=config.flip, relaxation_rate=1.0 / config.volume_relaxation if config.volume_relaxation > 0 else 0.0,
-        solid_mass=cup_solid_mass(grid, cup, spacing, density, offset_index, grid.strides(), bounds),
-        rod_points=rod_fill_points(rod, dx, rod_spacing, rod_height, d, dtype, device),
-        rod_point_mass=density * rod_spacing ** d,
-        cell_matrices=(CellMatrices.of(cells, grid.num_nodes) if config.pressure == "projection"
-                       else None),
-        walls=(WallParticles.of(grid, cup, rod, spacing, rod_height, offset_index, bounds) if config.wall_pressure
-               else None),
-        fused=use_fused(config.kernels, device),
-    )
+    Everything a step needs that does not change within a rollout is built here once (index tables, constant
+    matrices in the simulation's dtype), so that a step constructs no tensors from Python values.
 
-
-def seed_particles(scene: Scene, rig: Rig, config: SimConfig, pose: RodPose) -> State:
-    """Particles on a regular lattice, ``particles_per_cell`` per axis, filling the cup to its fill height
-    around the rod at ``pose``; at rest with volume ratio 1."""
-    grid, d, ppc = scene.grid, scene.dim, config.particles_per_cell
-    spacing = grid.dx / ppc
-    lo = grid.origin + 0.5 * spacing
-    counts = [int(grid.shape[a] * ppc) for a in range(d)]
-    axes = [lo[a] + spacing * torch.arange(counts[a], dtype=lo.dtype, device=lo.device) for a in range(d)]
-    x = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, d)
-    keep = (cup_sdf(rig.cup, x)[0] > 0) & (rod_sdf(scene.rod, x, pose)[0] > 0)
-    if d == 3:
-        keep &= x[:, 2] < rig.cup.fill_height
-    x = x[keep]
-    n = x.shape[0]
-    zeros = torch.zeros_like(x)
-    return State(x=x, v=zeros, C=torch.zeros(n, d, d, dtype=x.dtype, device=x.device),
-                 J=torch.ones(n, dtype=x.dtype, device=x.device))
-
-
-class _SettlingFluid(nn.Module):
-    """A Newtonian fluid of fixed viscosity used only to let the fluid settle under gravity."""
-
-    def __init__(self, viscosity: float):
-        super().__init__()
-        self.viscosity = viscosity
-
-    def shear_stress(self, grad_v, viscosity_cap, dt):
-        return 2.0 * self.viscosity * deviatoric_rate_of_strain(grad_v)
-
-
-def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pose: RodPose,
-                  cache_dir: str | Path | None = None) -> State:
-    """The fluid at rest around a still rod: seeded, then left to settle with damping, under gravity in 3-D and, in
-    both, until its packing around the rod (``packing``) is in equilibrium.
-
-    The result depends only on the rig, the resolution, the density and the rod's starting pose, not on the
-    rheology, so it is computed once and cached on disk (``cache_dir``, default ``$DIFFSTIR_CACHE_DIR`` or
-    ``~/.cache/diffstir``).
+    Attributes:
+        grid: the background grid; ``nodes`` the node positions [m] (num_nodes, d), ``strides`` its flat-index
+            strides (d,) int64.
+        offset_index: flat index offset of each quadratic-stencil node from the particle's base node, (3^d,) int64.
+        stencil_points: the stencil's node offsets in cells with a trailing 1, [o_k, 1], (3^d, d + 1).
+        eye: the identity matrix, (d, d).
+        mass_row: [0, …, 0, particle mass] [kg], (1, 1, d + 1): the mass row of the p2g transfer matrix.
+        cells: the grid's cells as finite elements (``viscous.CellStencil``).
+        particle_bounds: lowest and highest particle position whose stencil stays on the grid [m], (2, d).
+        cup: the cup; ``cup_phi`` its signed distance at every node [m]; ``cup_band`` its solid nodes within reach
+            of the fluid with their ghost-fluid probes (``boundaries.GhostBand``).
+        rod: the rod's shape; ``rod_slip`` whether its surface is a slip wall; ``rod_window`` the block of nodes
+            that holds the rod wherever it is (``boundaries.RodWindow``).
+        particle_mass: mass of one particle [kg] (2-D: per unit length [kg/m]).
+        particle_volume: rest volume of one particle [m³] (2-D: area [m²]).
+        node_mass: the mass a grid node carries inside the fluid at rest, density · dx^d [kg] (2-D: [kg/m]).
+        bulk_modulus: κ of the weakly compressible fluid [Pa].
+        gravity: acceleration of gravity [m/s²], (d,).
+        viscosity_cap: the largest viscosity the explicit step resolves [Pa·s]; above it the fluid is rigid-like.
+        rod_slip_length: Navier slip length b of the rod's (no-slip) surface [m]: the fluid slips along it at
+            b ∂u_t/∂n; 0 is no-slip (see ``boundaries.ghost_matrix``).
+        flip: share of FLIP in the particles' velocity update [1] (``SimConfig.flip``).
+        relaxation_rate: 1/τ, the rate at which J relaxes towards the grid's packing [1/s]; 0: not at all.
+        solid_mass: the mass the cup's walls and bottom would put on each node if they were fluid at rest [kg]
+            (2-D: [kg/m]), (num_nodes,) (``packing.cup_solid_mass``).
+        rod_points: virtual particles filling the rod near its surface, in the rod's frame [m], (R, d), each of
+            mass ``rod_point_mass`` [kg] (2-D: [kg/m]) (``packing.rod_fill_points``).
+        cell_matrices: with an incompressible pressure, the grid's cell operators as sparse matrices
+            (``projection.CellMatrices``): the pressure keeps the grid's velocity divergence-free instead of
+            following the particles' compression (``bulk_modulus`` is then 0); None: a compressible fluid.
+        walls: boundary particles in the solids that carry the fluid's pressure (``walls.WallParticles``); None:
+            the solids' nodes see the fluid's pressure only.
+        fused: whether the particle-grid transfers run as the fused C++ kernels (``transfer``) or as torch ops.
     """
-    state = seed_particles(scene, rig, config, pose)
-    if config.settle_time <= 0:
-        return state
-    # a rollout may have raised the bulk modulus; a projection's fluid settles as the compressible one
-    scene = replace(scene, bulk_modulus=density * config.sound_speed**2, cell_matrices=None)
-    key = _settle_key(rig, config, density, pose)
-    root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
-    path = root / "settled" / f"{key}.pt"
-    if path.exists():
-        cached = torch.load(path, map_location=state.x.device)
-        if cached["x"].shape == state.x.shape:
-            return State(x=cached["x"].to(state.x), v=torch.zeros_like(state.x), C=torch.zeros_like(state.C),
-                         J=cached["J"].to(state.J))
-    # any viscosity that the acoustic step resolves settles the fluid; the damping does the rest
-    dt = config.cfl * config.dx / config.sound_speed
-    fluid = _SettlingFluid(viscosity=0.5 * config.viscous_safety * density * config.dx**2 / (2 * config.dim * dt))
-    damping = math.exp(-dt / 0.02)  # velocity decays with a 20 ms time constant
-    still = RodPose(axis=pose.axis, tip=pose.tip, angle=pose.angle, velocity=torch.zeros_like(pose.velocity),
-                    angular_velocity=torch.zeros_like(pose.angular_velocity))
-    with torch.no_grad():
-        for k in range(int(math.ceil(config.settle_time / dt))):
-            state, _, _ = step(scene, fluid, state, still, dt)
-            state.v = state.v * damping
-            state.C = state.C * damping
-            if not (torch.isfinite(state.x).all() and torch.isfinite(state.J).all()):  # and nothing is cached
-                raise FloatingPointError(f"the fluid became non-finite while settling, at step {k} of dt = {dt:.3g} "
-                                         f"s (sim.dx = {config.dx} m, sim.sound_speed = {config.sound_speed} m/s, "
-                                         f"sim.cfl = {config.cfl}); try a smaller sim.cfl")
-    settled = State(x=state.x, v=torch.zeros_like(state.v), C=torch.zeros_like(state.C), J=state.J)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    torch.save({"x": settled.x.cpu(), "J": settled.J.cpu()}, tmp)
-    os.replace(tmp, path)
-    return settled
 
+    grid: Grid
+    offset_index: Tensor
+    stencil_points: Tensor
+    eye: Tensor
+    mass_row: Tensor
+    cells: CellStencil
+    particle_bounds: Tensor
+    strides: Tensor
+    nodes: Tensor
+    cup: Cup
+    cup_phi: Tensor
+    cup_band: GhostBand
+    rod: RodShape
+    rod_window: RodWindow
+    rod_slip: bool
+    particle_mass: float
+    particle_volume: float
+    node_mass: float
+    bulk_modulus: float
+    gravity: Tensor
+    viscosity_cap: float
+    flip: float
+    relaxation_rate: float
+    solid_mass: Tensor
+    rod_points: Tensor
+    rod_point_mass: float
+    rod_slip_length: float | Tensor = 0.0
+    cell_matrices: CellMatrices | None = None
+    walls: WallParticles | None = None
+    fused: bool = False
 
-def _settle_key(rig: Rig, config: SimConfig, density: float, pose: RodPose) -> str:
-    fields = {k: v for k, v in asdict(config).items() if k in ("dim", "dx", "particles_per_cell", "sound_speed", "cfl",
-                                                                 "headroom", "settle_time", "dtype", "flip",
-                                                                 "volume_relaxation")}
-    if config.wall_pressure:  # keyed only when on, so that the caches of the states settled without it stay valid
-        fields["wall_pressure"] = True
-    payload = json.dumps({"rig": asdict(rig), "sim": fields, "density": density, "version": 2,
-                          "pose": [round(float(v), 9) for v in (*pose.axis.tolist(), pose.tip, pose.angle)]},
-                         sort_keys=True, default=str)
-    return hashlib.sha256(payload.encode()).hexdigest()[:20]
+    @property
+    def dim(self) -> int:
+        return self.grid.dim
+
+    @property
+    def incompressible(self) -> bool:
+        """Whether the pressure is solved by a projection (``cell_matrices`` set)."""
+        return self.cell_matrices is not None

@@ -18,11 +18,12 @@ from torch import Tensor, nn
 from ..rig import Rig
 from ..trajectory import Trajectory
 from .boundaries import RodPose
+from .build import build_scene, settled_state
 from .config import SimConfig
 from .materials import KelvinVoigt
-from .scene import build_scene, settled_state
+from .scene import Scene
 from .state import State
-from .step import Scene, step
+from .step import step
 
 SHEAR_RATE_SCALE = 4.0  # the largest shear rate resolvable on the grid is about this times (max speed / dx)
 STEP_TOLERANCE = 1e-6  # relative: a duration within this of a whole number of steps takes that number (the
@@ -175,7 +176,9 @@ class StirringSimulator(nn.Module):
         if self.scene.incompressible and state.pressure is None:  # a fluid at rest: no pressure yet
             state = replace(state, pressure=torch.zeros(self.scene.cells.corners.shape[0], dtype=state.x.dtype,
                                                         device=state.x.device))
-        self.scene.bulk_modulus = 0.0 if self.scene.incompressible else self.density * self.sound_speed(trajectory) ** 2
+        bulk_modulus = 0.0 if self.scene.incompressible else self.density * self.sound_speed(trajectory) ** 2
+        if bulk_modulus != self.scene.bulk_modulus:
+            self.scene = replace(self.scene, bulk_modulus=bulk_modulus)
         forces, torques, snapshots, snapshot_times = [], [], [], []
         segment = self.config.checkpoint_every or steps
         names = state.names()  # the fields a step carries, the same in every segment

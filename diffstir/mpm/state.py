@@ -18,7 +18,7 @@ class State:
         J: volume ratio (current / rest volume) [1], (N,).
         material: the material's own state, or None for a memoryless material: any tensor that the material
             evolves each step (``grid_update`` passes it to ``material.shear_stress(..., state=...)``), e.g. a
-            structure parameter or a stress field on the grid cells (see ``diffstir.lab.physics``).
+            structure parameter or a stress field on the grid cells (see ``diffstir.mpm.hidden_physics``).
         pressure: with an incompressible pressure, the last step's pressure in each grid cell [Pa], (cells,), which
             pushes the next step's shear-stress substeps (``step.grid_update``); zero for a fluid at rest, None with
             a sound speed.

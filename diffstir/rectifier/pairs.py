@@ -5,7 +5,7 @@ A pair is (mean stirring speed U [m/s], preliminary viscosity η_p [Pa·s], refe
 
 * the recording comes from the virtual lab: a fluid's truth simulation at the truth resolution, read through a
   randomly drawn, realistic sensor model, with its Archimedes density readings;
-* η_p is the Newtonian ladder estimate (``diffstir.identify.initial.ViscosityLadder``) on the estimator's
+* η_p is the Newtonian ladder estimate (``diffstir.fitting.initial.ViscosityLadder``) on the estimator's
   resolution, exactly what ``identify`` computes before it fits any law;
 * η_ref is the fluid's true apparent viscosity at the stir's effective shear rate γ̇_eff, measured as ``identify``
   measures it (``effective_shear_rate``) at Newtonian-equivalent viscosities ``RATE_PROBES`` and interpolated to
@@ -32,13 +32,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from diffstir.identify.initial import PROBE_INDEX_STEP, ViscosityLadder, effective_shear_rate, mean_stirring_speed
-from diffstir.identify.pipeline import density_estimate
-from diffstir.identify.problem import StirProblem, Windows
-from diffstir.lab import (
-    Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth, simulate_truth,
-    stirring_programme,
-)
+from diffstir.density import density_estimate
+from diffstir.fitting import (PROBE_INDEX_STEP, StirProblem, ViscosityLadder, Windows, effective_shear_rate,
+                              mean_stirring_speed)
+from diffstir.lab import (Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth,
+                          simulate_truth, stirring_programme)
 from diffstir.mpm import SimConfig
 from diffstir.report_files import write_text_atomically
 from diffstir.rheology import LAWS, within_bounds
@@ -51,7 +49,7 @@ PAIRS_FORMAT = "diffstir-rectifier-pairs/1"
 #: creeping-flow constant), and held constant outside.
 RATE_PROBES = (0.1, 1.0, 10.0)
 
-#: How γ̇_eff was measured (``diffstir.identify.initial.effective_shear_rate``). Shards measured otherwise are
+#: How γ̇_eff was measured (``diffstir.fitting.initial.effective_shear_rate``). Shards measured otherwise are
 #: brought up to date when they resume: the group's rates are measured again and every pair's reference is
 #: recomputed from its stored law, without rerunning a truth simulation.
 SHEAR_RATE_METHOD = f"mean |reading|, power-law probes n = 1 +- {PROBE_INDEX_STEP}"

@@ -11,7 +11,7 @@ import yaml
 from acceptance_commands import example, full_only, ok, run, truth
 
 from diffstir.apps import CONF_DIR
-from diffstir.diagnose.candidates import PHYSICS_CANDIDATES, check_names
+from diffstir.diagnosis.candidates import PHYSICS_CANDIDATES, check_names
 from diffstir.lab import Fluid
 
 pytestmark = pytest.mark.acceptance

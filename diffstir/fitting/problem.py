@@ -136,7 +136,7 @@ class Windows:
 class FitProblem(Protocol):
     """What ``fit_model``, ``Readings`` and the uncertainty read of a problem: measured readings on compared
     samples, the simulated readings for a material, and the simulation settings. ``StirProblem`` (one recording),
-    ``behaviour.joint.JointProblem`` (windows of several recordings) and ``diagnose.candidates.CachedReplay`` (a
+    ``behaviour.joint.JointProblem`` (windows of several recordings) and ``diagnosis.candidates.CachedReplay`` (a
     candidate's replay, cached by its θ) implement it.
 
     Attributes:

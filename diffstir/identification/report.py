@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .pipeline import Identification
+from ..fitting import Identification, log_viscosity_interval
 from ..plots import pyplot, save_figure, viscosity_band
-from ..report_files import write_summary
+from ..report_files import format_bound, format_param, write_summary
 
 
 def write_report(result: Identification, out: str | Path) -> dict[str, Path]:
@@ -103,22 +103,6 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def format_param(name: str, value: float, unit: str, interval: list | None) -> str:
-    """``name = value unit [lower, upper]`` for a table (no unit for a dimensionless one), or "not identifiable"
-    in place of the interval."""
-    return f"{name} = {value:.4g}{'' if unit == '1' else ' ' + unit} {format_interval(interval)}"
-
-
-def format_interval(interval: list | None) -> str:
-    """A report's 95 % interval for a table: [lower, upper], or "not identifiable" where it is null."""
-    return "not identifiable" if interval is None else f"[{format_bound(interval[0])}, {format_bound(interval[1])}]"
-
-
-def format_bound(value) -> str:
-    """An interval end for a table: 3 significant digits, or inf when it is unbounded (None)."""
-    return "inf" if value is None else f"{value:.3g}"
-
-
 def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     """Measured versus simulated readings per law, flow curves with 95 % bands, and loss curves."""
     plt = pyplot()
@@ -140,7 +124,8 @@ def plot_all(result: Identification, out: Path) -> dict[str, Path]:
     fig, ax = plt.subplots(figsize=(6, 4.2), constrained_layout=True)
     ax.axvspan(lo, hi, color="0.9", label="probed by the stir")
     for name, fit in result.fits.items():
-        viscosity_band(ax, rates, fit.model, fit.theta, result.uncertainty[name].covariance, name)
+        band = log_viscosity_interval(fit.model, fit.theta, result.uncertainty[name].covariance, rates)
+        viscosity_band(ax, rates, *band, name)
     ax.axvline(result.effective_shear_rate, color="k", ls=":", lw=0.8)
     ax.set_xlabel("shear rate [1/s] (dotted: effective)")
     ax.set_ylabel("apparent viscosity [Pa·s]")

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..identify import Identification, StirProblem
+from ..fitting import Identification, StirProblem
 from ..rheology import LAWS, RheologyLaw, make_law
 from .candidates import scaled_law
 

@@ -8,9 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..identify.report import format_param
 from ..plots import pyplot, save_figure
-from ..report_files import write_summary
+from ..report_files import format_param, write_summary
 from .pipeline import Diagnosis
 
 PHASE_COLOURS = {"start-up": "tab:green", "speed change": "tab:orange", "reversal": "tab:purple", "stop": "0.75"}

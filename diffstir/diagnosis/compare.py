@@ -7,10 +7,10 @@ identification, such as a dead band that took a quarter off the viscosity, is th
 reading, not on a linearisation 5 mN (1.7 noise levels) off it (docs/diagnosis.md); physics candidates
 start from the base law with the extension at a typical strength (the best of several where the candidate offers
 several, ``screened_start``), take a forward-difference Jacobian (k + 1 simulations) and a few trust-region
-Gauss-Newton steps with Broyden updates (``diffstir.identify.fit_model``, soft-L1 cost at the starting residuals'
+Gauss-Newton steps with Broyden updates (``diffstir.fitting.fit_model``, soft-L1 cost at the starting residuals'
 scale, as the identification), and as many again at the simulator's sound speed of where they moved when it
 changed (``refrozen``). Each fit gets the Laplace covariance of its
-parameters with the effective sample size (``diffstir.identify.uncertainty``).
+parameters with the effective sample size (``diffstir.fitting.uncertainty``).
 
 Comparison by BIC with one effective sample size N_eff for all candidates (that of the candidate with the smallest
 RSS, whose residual is closest to the noise): BIC = N_eff ln(RSS/N) + k ln N_eff, k counting the viscosity scale
@@ -48,16 +48,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
-from ..identify.optimise import Readings, fit_model
-from ..identify.pipeline import interval_summary
-from ..identify.selection import bic, bic_of_rss
-from ..identify.uncertainty import effective_samples, laplace
+from ..fitting import Readings, bic, bic_of_rss, effective_samples, fit_model, laplace
 from ..parallel import Workers
+from ..report_files import interval_summary
 from .base import residual_test, simulated_reading
-from .candidates import (
-    PHYSICS_CANDIDATES, SCALE, SENSOR_CANDIDATES, YIELD_SUMMARY, CachedReplay, Context, Parametrisation,
-    PhysicsModel, SensorCandidate, scaled_law, yield_model,
-)
+from .candidates import (PHYSICS_CANDIDATES, SCALE, SENSOR_CANDIDATES, YIELD_SUMMARY, CachedReplay, Context,
+                         Parametrisation, PhysicsModel, SensorCandidate, scaled_law, yield_model)
 
 EVIDENCE = 10.0  # ΔBIC against the base law for an effect to be named
 DISTINCT = 6.0   # ΔBIC between the best two for them to be told apart
@@ -85,8 +81,8 @@ class CandidateFit:
         name, kind: the candidate (``sensor``, ``physics``) .
         summary: what it models, in words.
         params, units, ci95: fitted values (SI), units, 95 % intervals (null for a parameter the recording does
-            not determine, ``identify.pipeline.interval_summary``); identifiable: whether the recording
-            determines each parameter (``identify.uncertainty``).
+            not determine, ``report_files.interval_summary``); identifiable: whether the recording
+            determines each parameter (``fitting.uncertainty``).
         law: the fluid's law after the fit (name and SI parameters).
         predicted: readings [N] at the compared samples.
         loss: mean |measured − predicted| [N]; rss: Σ (measured − predicted)² [N²].

@@ -1,7 +1,7 @@
 """The apparent viscosity of one constant-speed window: a Newtonian fit through the simulator, read at the
 window's measured effective shear rate.
 
-The window's readings are fitted by the Newtonian law (``diffstir.identify``: a Newtonian ladder for the start,
+The window's readings are fitted by the Newtonian law (``diffstir.fitting``: a Newtonian ladder for the start,
 a few Gauss-Newton steps). A force sensor keeps a baseline b [N] (offset and slow drift left after the dry-run
 subtraction), which in a short window looks like part of the drag: a 2 mN offset on a 10 mN drag moves η by
 20 %. b is a nuisance parameter of each window with the prior b ~ N(0, q²), q the sensor's resolution [N] (what a
@@ -10,10 +10,10 @@ on the fit's Jacobian J and residuals r:
 
     [ω AᵀA + diag(0, 1/q²)] (Δ ln η, b) = ω Aᵀ r,   A = [J, 1],   ω = N_eff / (N s²),
 
-whose inverse matrix is the covariance; s² = RSS/(N − 1) and N_eff (``identify.uncertainty``) come from the
+whose inverse matrix is the covariance; s² = RSS/(N − 1) and N_eff (``fitting.uncertainty``) come from the
 Newtonian fit's residuals. Where the reading cannot tell a baseline from the drag, the interval of ln η widens.
 
-The simulator's own force error (``identify.uncertainty``), a relative error σ_m of the simulated readings p and a
+The simulator's own force error (``fitting.uncertainty``), a relative error σ_m of the simulated readings p and a
 relative error σ_i of their inertial part p − J (J = dp/d ln η, the readings' viscous part), moves ln η by the same
 step's response to them, (Δ ln η, b) = C ω Aᵀ (σ_m p) and C ω Aᵀ (σ_i (p − J)) with C the covariance above, in
 quadrature: about σ_m / e and σ_i (1 − e) / e for a reading whose viscous share is e. It is reported apart from the
@@ -23,7 +23,7 @@ so.
 
 The Newtonian-equivalent viscosity η_N is the fluid's apparent viscosity at the window's Metzner-Otto effective
 shear rate γ̇_eff = k_s U / a [1/s] (U the rod's speed, a its radius; k_s measured with the power-law probe of
-``identify.initial.effective_shear_rate``). The simulation runs from the recording's first sample to the
+``fitting.initial.effective_shear_rate``). The simulation runs from the recording's first sample to the
 window's end, so a later window of a programme pays for the stretches before it. Its acoustic time step is that of
 the whole recording's fastest motion, min(cfl Δx / (c + u_max), dt_max) (``recording_config``): the simulator
 picks the step from the simulated span's top speed, and an early, slow window simulated with a longer step than a
@@ -38,12 +38,14 @@ from typing import Callable
 
 import numpy as np
 
-from ..identify import FitModel, StirProblem, Windows, fit_model
-from ..identify.initial import LADDER_VISCOSITIES, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate
-from ..identify.progress import Progress, fit_simulations
-from ..identify.uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples, force_error
 from ..mpm import SimConfig
 from ..recording import Recording
+from .initial import LADDER_VISCOSITIES, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate
+from .models import FitModel
+from .optimise import fit_model
+from .problem import StirProblem, Windows
+from .progress import Progress, fit_simulations
+from .uncertainty import MODEL_FORCE_ERROR, Z95, checked_model_error, effective_samples, force_error
 from .windows import SpeedWindow
 
 #: Ladder around a previous window's viscosity: a factor 4 each way brackets a change of speed by 2-4 for any
@@ -68,7 +70,7 @@ class ViscosityPoint:
             fluid's drag is set by inertia, not viscosity).
         loss: the paper's loss of the Newtonian fit, mean |ΔF| [N].
         evaluations: forward simulations spent.
-        slice_factor: the slice's correction C of the fitted fluid (``identify.problem``: F = F' h C; None in 3-D).
+        slice_factor: the slice's correction C of the fitted fluid (``fitting.problem``: F = F' h C; None in 3-D).
     """
 
     window: SpeedWindow
@@ -127,7 +129,7 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
     factor ``LADDER_FACTOR`` either side; without it the full ladder (one probe per decade) is simulated.
     ``iterations``: Gauss-Newton iterations of the Newtonian fit. ``model_error``: the relative 1-σ error σ_m of
     ``config``'s simulated force, ``inertial_error`` the relative 1-σ error σ_i of its inertial part
-    (``identify.uncertainty``; 0 leaves either out). ``on_evaluation(loss)`` is called
+    (``fitting.uncertainty``; 0 leaves either out). ``on_evaluation(loss)`` is called
     after every simulation, with the fit's loss [N] where the simulation is the fit's, else None."""
     checked_model_error(model_error, "model_error")
     checked_model_error(inertial_error, "inertial_error")

@@ -15,131 +15,29 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from ..density import estimate_recording_density
+from ..density import density_estimate
 from ..errors import OutputError
+from ..fitting import (DEFAULT_NUISANCES, INERTIAL_FORCE_ERROR, LADDER_VISCOSITIES, MAGNITUDE_STEPS, MODEL_FORCE_ERROR,
+                       PROBE_INDEX_STEP, SHEAR_RATE_PROBES, FitModel, FitResult, Identification, MagnitudeJob, Progress,
+                       SensorNuisance, StirProblem, ViscosityLadder, Windows, bic, checked_model_error,
+                       effective_shear_rate, fit_simulations, force_error, laplace, mean_readings_on,
+                       mean_stirring_speed, noise_scale, select)
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..parallel import Workers
-from ..recording import Recording, RecordingError
+from ..recording import Recording
 from ..recording.digest import recording_digest
-from ..report_files import finite_or_none, write_text_atomically
+from ..report_files import write_text_atomically
 from ..rheology import LAWS
-from ..slice_correction import MOVING_SHARE, slice_correction_table
-from .family import law_family
-from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, ViscosityLadder, effective_shear_rate,
-                      mean_stirring_speed)
-from .jobs import MagnitudeJob, mean_readings_on
-from .magnitude import MAX_STEPS as MAGNITUDE_STEPS
-from .models import FitModel
-from .nuisance import DEFAULT_NUISANCES, UNITS, SensorNuisance
-from .optimise import FitResult, noise_scale
-from .problem import StirProblem, Windows
-from .progress import Progress, fit_simulations
-from .selection import bic, select
+from ..slice_correction import slice_correction_table
 from .stages import SECANT_STEPS, Plan, Stage
-from .uncertainty import (INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Uncertainty, checked_model_error, force_error,
-                          laplace, log_viscosity_interval)
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
-
-
-@dataclass
-class Identification:
-    """Everything :func:`identify` found; ``summary()`` is the JSON report."""
-
-    recording: Recording
-    problem: StirProblem
-    density: dict
-    fits: dict[str, FitResult]
-    uncertainty: dict[str, Uncertainty]
-    effective_shear_rate: float
-    selection: dict
-    resolvable: dict
-    seconds: float
-    preliminary: dict
-    model_error: float = 0.0
-    inertial_error: float = 0.0
-    refined: dict | None = None
-    magnitude: dict | None = None
-
-    @property
-    def selected(self) -> FitResult:
-        return self.fits[self.selection["selected"]]
-
-    def apparent_viscosity(self, name: str) -> dict:
-        """η at zero shear and at the effective shear rate [Pa·s] with 95 % intervals, for model ``name``."""
-        fit, unc = self.fits[name], self.uncertainty[name]
-        eta, lo, hi = log_viscosity_interval(fit.model, fit.theta, unc.covariance, self.effective_shear_rate)
-        return {"zero_shear": fit.model.zero_shear_viscosity(), "effective_shear_rate": self.effective_shear_rate,
-                "at_effective_shear_rate": float(eta[0]), "at_effective_shear_rate_ci95": [float(lo[0]), float(hi[0])],
-                "refined": self.refined}
-
-    def summary(self) -> dict:
-        """The report as JSON-serialisable data (SI units; see docs/identification.md)."""
-        laws = {}
-        for name, fit in self.fits.items():
-            unc = self.uncertainty[name]
-            laws[name] = {
-                "params": fit.model.params_si(), "units": fit.model.units,
-                "ci95": interval_summary(unc.ci95, unc.identifiable),
-                "identifiable": unc.identifiable, "at_bound": unc.at_bound,
-                "loss": fit.loss, "holdout_loss": fit.holdout_loss,
-                "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
-                "effective_samples": unc.effective_samples,
-                "apparent_viscosity": self.apparent_viscosity(name),
-                "evaluations": fit.evaluations, "seconds": fit.seconds, "optimizer_message": fit.message,
-                "sensor": {**fit.sensor, "units": {k: UNITS[k] for k in fit.sensor}},
-                "family": self.family(name),
-                "slice_correction": slice_correction_summary(self.problem, fit.model.material),
-            }
-        laws_only = {k: v for k, v in laws.items() if k != "corotated"}
-        return {
-            "recording": str(self.recording.path) if self.recording.path else self.recording.name,
-            "density": self.density,
-            "selected": self.selection["selected"],
-            "family": laws[self.selection["selected"]]["family"],
-            "selection": {k: v for k, v in self.selection.items() if k != "bic"},
-            "laws": laws_only,
-            "baseline": laws.get("corotated"),
-            "apparent_viscosity": self.apparent_viscosity(self.selection["selected"]),
-            "preliminary": self.preliminary,
-            "resolvable": self.resolvable,
-            "magnitude": self.magnitude,
-            "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
-                        "end": self.problem.windows.end, "unit": "s"},
-            "dead_start": self.problem.windows.dead_start.summary(),
-            "shear_rate_range": list(self.probed_shear_rates()),
-            "slice_correction": laws[self.selection["selected"]]["slice_correction"],
-            "force_scale": ("3-D force" if self.problem.config.dim != 2 else
-                            "F' h C" if self.problem.corrected else "F' h (fit.slice_correction=false)"),
-            "simulation": {**self.problem.config.numerics(), "force_error": self.model_error,
-                           "inertial_force_error": self.inertial_error},
-            "seconds": self.seconds,
-        }
-
-    def family(self, name: str) -> dict | None:
-        """How model ``name`` behaves over the probed shear rates (``family.law_family``); None when the stir
-        probed a single shear rate."""
-        band = self.probed_shear_rates()
-        if not band[1] > band[0] > 0.0:
-            return None
-        fit = self.fits[name]
-        return law_family(fit.model, fit.theta, self.uncertainty[name], band, self.effective_shear_rate)
-
-    def probed_shear_rates(self) -> tuple[float, float]:
-        """The band of effective shear rates the stir covered [1/s]: γ̇_eff scaled by the rod's slowest and fastest
-        speeds in the fitted window relative to its mean (speeds below ``MOVING_SHARE`` of the top speed are left
-        out)."""
-        speed = np.linalg.norm(self.problem.velocity[self.problem.train], axis=1)
-        moving = speed[speed > MOVING_SHARE * speed.max()] if speed.max() > 0 else np.ones(1)
-        ratio = self.effective_shear_rate / max(float(np.mean(speed)), 1e-12)
-        return float(moving.min() * ratio), float(moving.max() * ratio)
 
 
 def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, density: float | None = None,
@@ -160,7 +58,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             Archimedes estimate is used and this is ignored.
         window: fit the first ``window`` seconds of the recording (None: all of it).
         holdout_fraction: the last fraction of the window that is held out of the fit.
-        max_iterations, optimizer: see :func:`~diffstir.identify.optimise.fit_model`.
+        max_iterations, optimizer: see :func:`~diffstir.fitting.optimise.fit_model`.
         selection: ``"bic"``, ``"holdout"`` or ``"loss"`` (see ``selection``).
         checkpoint: a JSON file to resume from and save to after every iteration. It holds the recording's
             content digest (``recording.digest``) and the settings; a checkpoint of another recording or of other
@@ -316,44 +214,6 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
                           inertial_error=inertial_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
                           magnitude=state.get("magnitude"))
-
-
-def slice_correction_summary(problem: StirProblem, material) -> dict | None:
-    """The slice correction applied to ``material``'s simulated force on ``problem`` (None in 3-D): the factor C =
-    F_3D / (F'_2D h), its relative 1-σ uncertainty, whether the rig lies within the 3-D study's ranges, and the flow
-    index and Reynolds number it was evaluated at (``StirProblem.slice_correction``)."""
-    correction = problem.slice_correction(material)
-    if correction is None:
-        return None
-    return {"factor": correction.factor, "sigma": correction.sigma, "inside_study": correction.inside,
-            "flow_index": correction.flow_index, "reynolds": correction.reynolds, "stir_speed": problem.stir_speed,
-            "orbit_radius": problem.orbit_radius, "units": {"stir_speed": "m/s", "orbit_radius": "m"}}
-
-
-def interval_summary(ci95: dict[str, tuple[float, float]], identifiable: dict[str, bool]) -> dict:
-    """The 95 % intervals of a report, SI by name: [lower, upper] (an open end as null) for an identifiable
-    parameter, null for one the recording does not determine (its interval's ends say nothing)."""
-    return {k: [finite_or_none(lo), finite_or_none(hi)] if identifiable[k] else None for k, (lo, hi) in ci95.items()}
-
-
-def density_estimate(recording: Recording, density: float | None) -> dict:
-    """The fluid's density [kg/m³] with its 95 % interval: Archimedes from the recording's density block, or
-    ``density`` from the config when the recording has none."""
-    if recording.density is not None:
-        est = estimate_recording_density(recording)
-        return {"value": est.value, "ci95": list(est.ci95), "unit": "kg/m^3", "source": "archimedes",
-                "uncertainty_source": est.uncertainty_source}
-    return configured_density(density, f"{recording.source('yaml')}: no density block")
-
-
-def configured_density(density: float | None, missing: str) -> dict:
-    """The config's ``density`` [kg/m³] as a density report, for recordings without a density block (``missing``
-    says which, for the error when none is configured either)."""
-    if density is None:
-        raise RecordingError(f"{missing}, and no density (kg/m^3) was given; set density=... in the config")
-    if not 100.0 <= density <= 25000.0:
-        raise ValueError(f"density = {density} kg/m^3 is not a liquid's density in kg/m^3")
-    return {"value": float(density), "ci95": None, "unit": "kg/m^3", "source": "config"}
 
 
 def _preliminary(ladder: dict, problem: StirProblem) -> dict:

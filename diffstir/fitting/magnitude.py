@@ -48,7 +48,7 @@ RESOLVED_FACTOR = 2.0
 #: The secant stops when ln M is this close to the measured ln M [1]: a tenth of the 3 % force error.
 TOLERANCE = 3e-3
 #: Most simulations the secant spends after the first.
-MAX_STEPS = 5
+MAGNITUDE_STEPS = 5
 #: The first step in ln η when no slope is known [1], and the largest step the secant takes.
 FIRST_STEP, MAX_STEP = 0.5, 1.5
 #: The slope at the root is a secant over at least this step in ln η [1]: shorter ones are inside the float32
@@ -135,7 +135,7 @@ def _solve(log_m, target: float, x0: float, step: float, bounds: tuple[float, fl
     (the first over the nearest simulated point, or of size ``step`` without one); (x, whether it was reached
     within ``TOLERANCE``)."""
     x, tried = float(np.clip(x0, *bounds)), []
-    for _ in range(MAX_STEPS + 1):
+    for _ in range(MAGNITUDE_STEPS + 1):
         y = log_m(x)
         if not math.isfinite(y):
             break  # the simulation diverged (``optimise.Readings``): no further that way

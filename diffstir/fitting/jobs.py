@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from ..parallel import Workers
-from .magnitude import MAX_STEPS, MagnitudeEstimate, magnitude_estimate
+from .magnitude import MAGNITUDE_STEPS, MagnitudeEstimate, magnitude_estimate
 from .models import FitModel
 from .nuisance import SensorNuisance
 from .optimise import FitResult, Readings, fit_model
@@ -107,7 +107,7 @@ class MagnitudeJob:
     problem: StirProblem
     start: float
     model_error: float
-    priority: tuple[bool, int] = (False, MAX_STEPS + 1)  # nothing waits for it: after the Newtonian fits
+    priority: tuple[bool, int] = (False, MAGNITUDE_STEPS + 1)  # nothing waits for it: after the Newtonian fits
 
     def run(self, report: Callable[[tuple], None]) -> MagnitudeEstimate:
         return magnitude_estimate(

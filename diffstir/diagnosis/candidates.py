@@ -15,7 +15,7 @@ fit's Jacobian, p = p0 + J_s ln s, and re-anchored on a simulation where a fit m
                         reads the force m a that accelerates them; a_s is the rod's acceleration read through the
                         sensor mode (component or tangential only)                          m [kg]
 
-Physics candidates change the simulated fluid or rig and are simulated (``diffstir.lab.physics``):
+Physics candidates change the simulated fluid or rig and are simulated (``diffstir.mpm.hidden_physics``):
 
 * ``thixotropy``:        Moore structure λ, η = s η_law (1 + α λ), dλ/dt = (1 − λ)/t_r − k γ̇ λ, λ(0) = 1
                                                                                          α [1], k [1], t_r [s]
@@ -38,12 +38,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..identify import StirProblem
-from ..identify.initial import initial_model
-from ..identify.models import FitModel
-from ..identify.nuisance import lag_response
-from ..lab.physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
+from ..fitting import FitModel, StirProblem, initial_model, lag_response
 from ..lab.sensor import dead_band
+from ..mpm.hidden_physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from ..recording import SensorSpec
 from ..recording.sensor import sensor_reading_np
 from ..rheology import RheologyLaw, make_law
@@ -265,7 +262,7 @@ def check_names(names) -> list[str]:
 
 class Parametrisation:
     """A candidate's parameters as θ (ln value for log-scaled, the value for linear ones), with the attributes
-    ``diffstir.identify.uncertainty.laplace`` reads (names, units, scales, lower, upper, si_of_theta)."""
+    ``diffstir.fitting.uncertainty.laplace`` reads (names, units, scales, lower, upper, si_of_theta)."""
 
     def __init__(self, params: tuple[Param, ...]):
         self.params = params
@@ -292,7 +289,7 @@ class Parametrisation:
 
 
 class PhysicsModel(Parametrisation):
-    """A physics candidate on top of the base law, seen by ``diffstir.identify.fit_model`` as a model with θ:
+    """A physics candidate on top of the base law, seen by ``diffstir.fitting.fit_model`` as a model with θ:
     ``set_theta`` rebuilds ``material`` (and ``slip_length`` [m]) from θ."""
 
     def __init__(self, candidate: PhysicsCandidate, law: RheologyLaw, ctx: Context):
@@ -314,7 +311,7 @@ class PhysicsModel(Parametrisation):
 class CachedReplay:
     """A ``StirProblem`` whose simulations follow a candidate model (its material and the rod's slip length) and
     are cached by the model's θ, so that the finite-difference Jacobian taken before a fit and the fit itself
-    never simulate the same θ twice. It is a ``identify.FitProblem``; ``simulations`` counts its simulations."""
+    never simulate the same θ twice. It is a ``fitting.FitProblem``; ``simulations`` counts its simulations."""
 
     def __init__(self, problem: StirProblem, model, simulations: int = 0):
         self.problem, self.model, self.cache, self.simulations = problem, model, {}, simulations

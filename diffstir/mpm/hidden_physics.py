@@ -1,5 +1,6 @@
-"""Hidden physics for truth simulations: what the fitting models (a generalized Newtonian law in the paper's
-Kelvin-Voigt material) leave out. Each is a physical model with parameters, evolved inside the simulation.
+"""Hidden physics: what the fitting models (a generalized Newtonian law in the paper's Kelvin-Voigt material) leave
+out, as materials of the simulator for the virtual lab's truths and the diagnosis's candidates. Each is a physical
+model with parameters, evolved inside the simulation.
 
 ``HiddenPhysics(law, ...)`` is a material for ``StirringSimulator``: the shear stress of the Kelvin-Voigt fluid,
 2 η dev D with η = η_law(γ̇), changed by

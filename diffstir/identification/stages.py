@@ -20,12 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from .initial import initial_models, newtonian_embedding
-from .jobs import FitJob
-from .models import FitModel
-from .nuisance import SensorNuisance
-from .optimise import FitResult
-from .problem import StirProblem
+from ..fitting import FitJob, FitModel, FitResult, SensorNuisance, StirProblem, initial_models, newtonian_embedding
 
 #: Fine-stage evaluations a one-parameter model (the Newtonian law, the corotated baseline) gets beyond the
 #: stage's iterations: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss

@@ -48,16 +48,18 @@ AT_BOUND = 1e-3              # of the θ range: closer than this to a bound coun
 
 #: σ_m, the relative 1-σ error of the fine stage's force (``conf/sim/slice2d.yaml``: the 2-D slice, dx = 2.5 mm,
 #: incompressible, a 2 ms step): the paper's stir against the finite-element reference reads +1.9, −3.0 and −3.9 %
-#: at 0.2, 1 and 3 Pa·s (rms 3.1 %) and the closed forms are within 4.1 % from 0.5 to 3 Pa·s (docs/validation.md).
+#: at 0.2, 1 and 3 Pa·s (rms 3.1 %) and the closed forms are within 4.1 % from 0.5 to 3 Pa·s (docs/validation-stir.md,
+#: docs/validation-closed-forms.md).
 MODEL_FORCE_ERROR = 0.03
 #: σ_m of the coarse grid (``conf/sim/coarse2d.yaml``, dx = 5 mm, compressible): the rms of its closed forms'
 #: deficits, the Newtonian and power-law Couette torques 17 and 18 % low and the translating rod at 0.5 and 1 Pa·s
-#: 11 and 16 % low (docs/validation.md, Closed forms, under refinement).
+#: 11 and 16 % low (docs/validation-closed-forms.md, Convergence under refinement).
 COARSE_FORCE_ERROR = 0.16
 #: σ_i, the relative 1-σ error of the fine stage's force in its part that does not scale with the fluid's stress
 #: (module docstring): the paper's stir against the finite-element reference at 0.05, 0.1 and 0.2 Pa·s (Re 50, 25,
 #: 12.5), the rms deviation of the force vector over the rms of the reference's inertial part, I = F − dF/d ln η,
-#: rms over the three (``python scripts/validate_simulator.py --checks inertial_error``, docs/validation.md).
+#: rms over the three (``python scripts/validate_simulator.py --checks inertial_error``,
+#: docs/validation-projection.md, How far off the inertial force is).
 INERTIAL_FORCE_ERROR = 0.3
 
 

@@ -5,7 +5,7 @@ improve.
     diag.verdict, diag.sentence
     write_diagnosis(diag, "out/")            # diagnosis.json, diagnosis.md, plots
 
-``identification`` is an :class:`~diffstir.identify.Identification` or a ``diffstir-fit`` report.json; the
+``identification`` is an :class:`~diffstir.fitting.Identification` or a ``diffstir-fit`` report.json; the
 selected law is the base. The whole recording is compared (or its first ``window`` seconds), all samples fitted:
 the stops and reversals that tell look-alike effects apart must be inside.
 """
@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..identify import Identification, StirProblem, Windows
-from ..identify.initial import characteristic_shear_rate
+from ..fitting import Identification, StirProblem, Windows, characteristic_shear_rate
 from ..mpm import SimConfig
 from ..recording import Recording
 from .base import BaseFit, base_from_identification, law_from_report, noise_level, simulate_base

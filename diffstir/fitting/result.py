@@ -1,0 +1,122 @@
+"""The result of identifying a recording: every law's fit, its uncertainty, the selection; ``summary()`` is the
+report's JSON."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..recording import Recording
+from ..report_files import interval_summary
+from ..slice_correction import MOVING_SHARE
+from .family import law_family
+from .nuisance import UNITS
+from .optimise import FitResult
+from .problem import StirProblem
+from .uncertainty import Uncertainty, log_viscosity_interval
+
+
+@dataclass
+class Identification:
+    """Everything :func:`identify` found; ``summary()`` is the JSON report."""
+
+    recording: Recording
+    problem: StirProblem
+    density: dict
+    fits: dict[str, FitResult]
+    uncertainty: dict[str, Uncertainty]
+    effective_shear_rate: float
+    selection: dict
+    resolvable: dict
+    seconds: float
+    preliminary: dict
+    model_error: float = 0.0
+    inertial_error: float = 0.0
+    refined: dict | None = None
+    magnitude: dict | None = None
+
+    @property
+    def selected(self) -> FitResult:
+        return self.fits[self.selection["selected"]]
+
+    def apparent_viscosity(self, name: str) -> dict:
+        """η at zero shear and at the effective shear rate [Pa·s] with 95 % intervals, for model ``name``."""
+        fit, unc = self.fits[name], self.uncertainty[name]
+        eta, lo, hi = log_viscosity_interval(fit.model, fit.theta, unc.covariance, self.effective_shear_rate)
+        return {"zero_shear": fit.model.zero_shear_viscosity(), "effective_shear_rate": self.effective_shear_rate,
+                "at_effective_shear_rate": float(eta[0]), "at_effective_shear_rate_ci95": [float(lo[0]), float(hi[0])],
+                "refined": self.refined}
+
+    def summary(self) -> dict:
+        """The report as JSON-serialisable data (SI units; see docs/identification.md)."""
+        laws = {}
+        for name, fit in self.fits.items():
+            unc = self.uncertainty[name]
+            laws[name] = {
+                "params": fit.model.params_si(), "units": fit.model.units,
+                "ci95": interval_summary(unc.ci95, unc.identifiable),
+                "identifiable": unc.identifiable, "at_bound": unc.at_bound,
+                "loss": fit.loss, "holdout_loss": fit.holdout_loss,
+                "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
+                "effective_samples": unc.effective_samples,
+                "apparent_viscosity": self.apparent_viscosity(name),
+                "evaluations": fit.evaluations, "seconds": fit.seconds, "optimizer_message": fit.message,
+                "sensor": {**fit.sensor, "units": {k: UNITS[k] for k in fit.sensor}},
+                "family": self.family(name),
+                "slice_correction": slice_correction_summary(self.problem, fit.model.material),
+            }
+        laws_only = {k: v for k, v in laws.items() if k != "corotated"}
+        return {
+            "recording": str(self.recording.path) if self.recording.path else self.recording.name,
+            "density": self.density,
+            "selected": self.selection["selected"],
+            "family": laws[self.selection["selected"]]["family"],
+            "selection": {k: v for k, v in self.selection.items() if k != "bic"},
+            "laws": laws_only,
+            "baseline": laws.get("corotated"),
+            "apparent_viscosity": self.apparent_viscosity(self.selection["selected"]),
+            "preliminary": self.preliminary,
+            "resolvable": self.resolvable,
+            "magnitude": self.magnitude,
+            "windows": {"start": self.problem.windows.start, "split": self.problem.windows.split,
+                        "end": self.problem.windows.end, "unit": "s"},
+            "dead_start": self.problem.windows.dead_start.summary(),
+            "shear_rate_range": list(self.probed_shear_rates()),
+            "slice_correction": laws[self.selection["selected"]]["slice_correction"],
+            "force_scale": ("3-D force" if self.problem.config.dim != 2 else
+                            "F' h C" if self.problem.corrected else "F' h (fit.slice_correction=false)"),
+            "simulation": {**self.problem.config.numerics(), "force_error": self.model_error,
+                           "inertial_force_error": self.inertial_error},
+            "seconds": self.seconds,
+        }
+
+    def family(self, name: str) -> dict | None:
+        """How model ``name`` behaves over the probed shear rates (``family.law_family``); None when the stir
+        probed a single shear rate."""
+        band = self.probed_shear_rates()
+        if not band[1] > band[0] > 0.0:
+            return None
+        fit = self.fits[name]
+        return law_family(fit.model, fit.theta, self.uncertainty[name], band, self.effective_shear_rate)
+
+    def probed_shear_rates(self) -> tuple[float, float]:
+        """The band of effective shear rates the stir covered [1/s]: γ̇_eff scaled by the rod's slowest and fastest
+        speeds in the fitted window relative to its mean (speeds below ``MOVING_SHARE`` of the top speed are left
+        out)."""
+        speed = np.linalg.norm(self.problem.velocity[self.problem.train], axis=1)
+        moving = speed[speed > MOVING_SHARE * speed.max()] if speed.max() > 0 else np.ones(1)
+        ratio = self.effective_shear_rate / max(float(np.mean(speed)), 1e-12)
+        return float(moving.min() * ratio), float(moving.max() * ratio)
+
+
+def slice_correction_summary(problem: StirProblem, material) -> dict | None:
+    """The slice correction applied to ``material``'s simulated force on ``problem`` (None in 3-D): the factor C =
+    F_3D / (F'_2D h), its relative 1-σ uncertainty, whether the rig lies within the 3-D study's ranges, and the flow
+    index and Reynolds number it was evaluated at (``StirProblem.slice_correction``)."""
+    correction = problem.slice_correction(material)
+    if correction is None:
+        return None
+    return {"factor": correction.factor, "sigma": correction.sigma, "inside_study": correction.inside,
+            "flow_index": correction.flow_index, "reynolds": correction.reynolds, "stir_speed": problem.stir_speed,
+            "orbit_radius": problem.orbit_radius, "units": {"stir_speed": "m/s", "orbit_radius": "m"}}
