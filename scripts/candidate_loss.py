@@ -27,6 +27,7 @@ from diagnosis_benchmark import STRENGTHS, Lab, coarse, fluids
 from diffstir.diagnosis.base import base_from_identification, simulated_reading
 from diffstir.diagnosis.candidates import PHYSICS_CANDIDATES, CachedReplay, Context, PhysicsModel, scaled_law
 from diffstir.diagnosis.compare import ScaleReadings
+from diffstir.fitting import FitSettings
 from diffstir.fitting.initial import characteristic_shear_rate
 from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.identification import identify
@@ -57,8 +58,8 @@ def main() -> None:
     config = coarse()
     lab = Lab(fluids()[args.fluid], config)
     recording, truth = lab.recording(args.effect, STRENGTHS[args.strength], args.seed)
-    ident = identify(recording, ["newtonian"], config=config, baseline=False, window=None, holdout_fraction=0.0,
-                     max_iterations=args.identify_iterations, progress=False, sensor_nuisance=(), size_estimate=False)
+    ident = identify(recording, ["newtonian"], config=config, baseline=False, progress=False, size_estimate=False,
+                     fit=FitSettings(window=None, holdout_fraction=0.0, max_iterations=args.identify_iterations))
     eta_identified = ident.selected.model.params_si()["eta"]
     problem = StirProblem(recording, config, ident.density["value"], Windows.of(recording, None, 0.0))
     base = base_from_identification(ident, problem)

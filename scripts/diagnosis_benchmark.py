@@ -36,6 +36,7 @@ import torch
 from omegaconf import OmegaConf
 
 from diffstir.diagnosis import CANDIDATES, diagnose, write_diagnosis
+from diffstir.fitting import FitSettings
 from diffstir.identification import identify
 from diffstir.lab import Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise
 from diffstir.mpm import SimConfig
@@ -131,8 +132,8 @@ class Lab:
 def run_case(lab: Lab, effect: str, strength: str, seed: int, config: SimConfig, args, out: Path) -> dict:
     started = time.perf_counter()
     recording, truth = lab.recording(effect, STRENGTHS[strength], seed)
-    ident = identify(recording, ["newtonian"], config=config, baseline=False, window=None, holdout_fraction=0.0,
-                     max_iterations=args.identify_iterations, progress=False, sensor_nuisance=(), size_estimate=False)
+    ident = identify(recording, ["newtonian"], config=config, baseline=False, progress=False, size_estimate=False,
+                     fit=FitSettings(window=None, holdout_fraction=0.0, max_iterations=args.identify_iterations))
     diag = diagnose(recording, ident, config=config, max_iterations=args.max_iterations)
     name = f"{effect}-{strength}-{lab.fluid.name.replace(' ', '_')}-{seed}"
     if args.write_reports:

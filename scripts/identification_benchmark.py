@@ -43,6 +43,7 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from diffstir.fitting import FitSettings
 from diffstir.fitting.family import NEWTONIAN_CHANGE
 from diffstir.fitting.uncertainty import COARSE_FORCE_ERROR, MODEL_FORCE_ERROR
 from diffstir.identification import identify
@@ -115,9 +116,9 @@ def newtonian_part(args) -> list[dict]:
         fluid = Fluid(name=f"newtonian {eta:g}", density=density, law={"name": "newtonian", "params": {"eta": eta}})
         lab = synthesise(fluid, trajectory, sim_config=truth_config, sensor=sensor, seed=args.seed + i)
         model_error = MODEL_FORCE_ERROR if args.model_error is None else args.model_error
-        result = identify(lab.recording, ("newtonian",), config=fine, coarse=coarse, baseline=False, window=None,
-                          fine_iterations=args.fine_iterations, progress=False,
-                          sensor_nuisance=args.sensor_nuisance, model_error=model_error)
+        result = identify(lab.recording, ("newtonian",), config=fine, coarse=coarse, baseline=False, progress=False,
+                          fit=FitSettings(window=None, fine_iterations=args.fine_iterations,
+                                          sensor_nuisance=args.sensor_nuisance, model_error=model_error))
         law = result.summary()["laws"]["newtonian"]
         fitted, (lo, hi) = law["params"]["eta"], law["ci95"]["eta"] or (None, None)  # null: not identifiable
         rho, size = result.density, result.magnitude
@@ -154,10 +155,10 @@ def laws_part(args) -> list[dict]:
         stages = {"config": sim("sim/slice2d.yaml"), "coarse": coarse} if args.law_fine else {"config": coarse}
         model_error = args.model_error if args.model_error is not None else (
             MODEL_FORCE_ERROR if args.law_fine else COARSE_FORCE_ERROR)
-        result = identify(lab.recording, **stages, baseline=True, window=None, max_iterations=args.iterations,
-                          fine_iterations=args.fine_iterations, progress=False,
-                          sensor_nuisance=args.sensor_nuisance, model_error=model_error,
-                          size_estimate=False)
+        result = identify(lab.recording, **stages, baseline=True, progress=False, size_estimate=False,
+                          fit=FitSettings(window=None, max_iterations=args.iterations,
+                                          fine_iterations=args.fine_iterations, sensor_nuisance=args.sensor_nuisance,
+                                          model_error=model_error))
         summary = result.summary()
         law = fluid.make_law().double()
         rate = summary["apparent_viscosity"]["effective_shear_rate"]

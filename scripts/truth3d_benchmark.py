@@ -44,6 +44,7 @@ from pathlib import Path
 
 import yaml
 
+from diffstir.fitting import FitSettings
 from diffstir.fitting.uncertainty import MAX_FACTOR
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +127,6 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
         if kept is not None:
             write_lab_recording(lab, kept)
     truth_seconds = time.perf_counter() - started
-    fit_cfg = yaml.safe_load((CONF / "fit.yaml").read_text())["fit"]
     fine, coarse = sim_config("slice2d", sim_settings), sim_config("coarse2d", sim_settings)
     true_law = fluid.make_law().double()
     row = {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
@@ -134,13 +134,8 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}}
     for corrected in (True, False):
         t0 = time.perf_counter()
-        result = identify(recording, (law["name"],), config=fine, coarse=coarse, baseline=False,
-                          window=fit_cfg["window"], holdout_fraction=fit_cfg["holdout_fraction"],
-                          max_iterations=fit_cfg["max_iterations"], fine_iterations=fit_cfg["fine_iterations"],
-                          optimizer=fit_cfg["optimizer"], selection=fit_cfg["selection"],
-                          sensor_nuisance=tuple(fit_cfg["sensor_nuisance"]), model_error=fit_cfg["model_error"],
-                          inertial_error=fit_cfg["inertial_error"],
-                          slice_correction=corrected, size_estimate=False, progress=False)
+        result = identify(recording, (law["name"],), config=fine, coarse=coarse, baseline=False, size_estimate=False,
+                          progress=False, fit=FitSettings(slice_correction=corrected))
         summary = result.summary()
         fitted = summary["laws"][law["name"]]
         apparent = summary["apparent_viscosity"]

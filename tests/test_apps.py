@@ -41,8 +41,11 @@ def assert_refused(done, app: str, message: str) -> None:
     (["rectifier.checkpoint=missing.ckpt"], "rectifier.checkpoint = missing.ckpt: no such file"),
     (["fit.model_error=-0.1"], "fit.model_error = -0.1; expected a relative force error in [0, 1)"),
     (["fit.inertial_error=1.5"], "fit.inertial_error = 1.5; expected a relative force error in [0, 1)"),
-    (["fit.max_iterations=0"], "fit.max_iterations = 0; expected at least 1"),
-    (["fit.slice_correction=maybe"], "fit.slice_correction = 'maybe'; expected true or false"),
+    (["fit.max_iterations=0"], "fit.max_iterations = 0; expected a whole number of at least 1"),
+    (["fit.max_iterations=abc"], "Error merging override fit.max_iterations=abc: Value 'abc' of type 'str' could not "
+                                 "be converted to Integer"),  # the schema's type
+    (["fit.slice_correction=maybe"], "Error merging override fit.slice_correction=maybe: Value 'maybe' is not a "
+                                     "valid bool"),
     (["threads=0"], "threads = 0; expected at least 1"),
     (["fit.windw=3"], "Could not override 'fit.windw'."),  # misspelt
     (["sim=slice3d"], "In 'fit': Could not find 'sim/slice3d' Available options in 'sim': coarse2d, fine3d"),

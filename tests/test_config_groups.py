@@ -14,6 +14,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from diffstir.apps import CONF_DIR, run_folder
 from diffstir.apps.synth import lab_setup
+from diffstir.fitting import FitSettings
 
 APPS = sorted(path.stem for path in Path(CONF_DIR).glob("*.yaml"))
 #: Targets that open a device when built (a serial port, a robot's socket): their settings are bound to the
@@ -98,3 +99,10 @@ def test_each_group_option_composes_and_builds(app, key, option):
     if app == "synth":  # the lab's fluid, programme, sensor and physics are plain settings the app builds
         setup = lab_setup(cfg)
         assert setup.trajectory.duration > 0 and setup.fluid.density > 0
+
+
+def test_the_fit_block_composes_on_its_schema_to_its_defaults():
+    # conf/fit.yaml's values are those of FitSettings(), which identify() uses when given none: one default
+    settings = OmegaConf.to_object(composed("fit").fit)
+    assert isinstance(settings, FitSettings)
+    assert settings == FitSettings()

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from diffstir.fitting import FitSettings
 from diffstir.fitting.problem import DEAD_START_CHANCE, StirProblem, Windows, dead_start
 from diffstir.identification import identify
 from diffstir.mpm import SimConfig, StirringSimulator
@@ -118,8 +119,8 @@ def test_a_fit_after_a_dead_start_reads_the_live_signal_and_reports_the_dead_sta
     reading += np.random.default_rng(0).normal(0.0, noise, reading.shape)
     rec = Recording(cup=CUP, rod=ROD, sensor=sensor, density=None, t=traj.t, x=traj.xy[:, 0], y=traj.xy[:, 1],
                     force=np.where(traj.t < 0.2, 0.0, reading), name="waking")
-    fit = identify(rec, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=0.2,
-                   holdout_fraction=0.0, max_iterations=3, progress=False, size_estimate=False)
+    fit = identify(rec, ["newtonian"], config=FAST, density=1000.0, baseline=False, progress=False, size_estimate=False,
+                   fit=FitSettings(window=0.2, holdout_fraction=0.0, max_iterations=3))
     lo, hi = fit.uncertainty["newtonian"].ci95["eta"]
     assert lo < eta < hi and fit.uncertainty["newtonian"].identifiable["eta"]
     summary = fit.summary()

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from diffstir.errors import OutputError
+from diffstir.fitting import FitSettings
 from diffstir.fitting.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
                                       newtonian_embedding)
 from diffstir.fitting.models import FitModel
@@ -409,15 +410,15 @@ def test_missing_density_names_the_file_and_unit(newtonian_recording):
     with pytest.raises(RecordingError, match="kg/m\\^3"):
         identify(newtonian_recording, ["newtonian"], config=FAST, baseline=False, progress=False)
     with pytest.raises(ValueError, match="fit.model_error = -0.03; expected a relative force error"):
-        identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, model_error=-0.03)
+        identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, fit=FitSettings(model_error=-0.03))
 
 
 @pytest.fixture(scope="module")
 def newtonian_identification(newtonian_recording, tmp_path_factory):
     out = tmp_path_factory.mktemp("fit")
-    result = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
-                      holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=out / "checkpoint.json",
-                      log_dir=out / "tb")
+    result = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, progress=False,
+                      checkpoint=out / "checkpoint.json", log_dir=out / "tb",
+                      fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=5))
     return result, out
 
 
@@ -439,9 +440,9 @@ def test_newtonian_viscosity_is_recovered_within_its_interval(newtonian_identifi
 def test_a_lag_free_recording_fits_no_lag(newtonian_recording):
     # made by the fitting simulator with white noise only: the profiled lag must stay far below the 50 ms ramp,
     # the fastest change in the reading, and the viscosity stays within its interval
-    result = identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
-                      holdout_fraction=0.0, max_iterations=3, progress=False, sensor_nuisance=("lag",),
-                      size_estimate=False)
+    result = identify(newtonian_recording, ["newtonian"], config=FAST, density=1000.0, baseline=False, progress=False,
+                      size_estimate=False,
+                      fit=FitSettings(window=None, holdout_fraction=0.0, max_iterations=3, sensor_nuisance=("lag",)))
     fit, unc = result.fits["newtonian"], result.uncertainty["newtonian"]
     assert result.magnitude is None and result.summary()["magnitude"] is None  # not asked for
     assert fit.sensor["lag"] < 0.005
@@ -469,8 +470,8 @@ def test_a_stated_time_constant_is_part_of_the_simulated_reading():
     measured = problem.measured
     assert np.std(measured - stated_reading) == pytest.approx(NOISE, rel=0.3)
     assert np.std(measured - bare_reading) > 1.5 * NOISE
-    result = identify(lagged, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
-                      holdout_fraction=0.0, max_iterations=3, progress=False)
+    result = identify(lagged, ["newtonian"], config=FAST, density=1000.0, baseline=False, progress=False,
+                      fit=FitSettings(window=None, holdout_fraction=0.0, max_iterations=3))
     unc = result.uncertainty["newtonian"]
     assert unc.ci95["eta"][0] < TRUE_ETA < unc.ci95["eta"][1]
     assert unc.residual_std == pytest.approx(NOISE, rel=0.3)
@@ -502,23 +503,25 @@ def test_resume_does_not_refit_finished_models(newtonian_identification, newtoni
     calls = []
     original = StirProblem.simulate
     monkeypatch.setattr(StirProblem, "simulate", lambda self, m: calls.append(1) or original(self, m))
-    again = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
-                     holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=out / "checkpoint.json")
+    again = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, progress=False,
+                     checkpoint=out / "checkpoint.json",
+                     fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=5))
     assert calls == []
     assert again.fits["power_law"].model.params_si() == pytest.approx(result.fits["power_law"].model.params_si())
     with pytest.raises(OutputError, match="checkpoint.json: the checkpoint was written with other settings "
                                           "\\(max_iterations\\); use another out= or overwrite=true"):
-        identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
-                 holdout_fraction=0.25, max_iterations=3, progress=False, checkpoint=out / "checkpoint.json")
+        identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, progress=False,
+                 checkpoint=out / "checkpoint.json",
+                 fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=3))
     # a changed step changes every force: fits made with the other step are not resumed
     with pytest.raises(OutputError, match="other settings \\(dt_max\\)"):
         identify(newtonian_recording, ["newtonian", "power_law"], config=FAST.replace(dt_max=FAST.dt_max / 2),
-                 density=1000.0, window=None, holdout_fraction=0.25, max_iterations=5, progress=False,
-                 checkpoint=out / "checkpoint.json")
+                 density=1000.0, progress=False, checkpoint=out / "checkpoint.json",
+                 fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=5))
     # where it runs does not: the same fits are resumed
-    identify(newtonian_recording, ["newtonian", "power_law"], config=FAST.replace(checkpoint_every=7),
-             density=1000.0, window=None, holdout_fraction=0.25, max_iterations=5, progress=False,
-             checkpoint=out / "checkpoint.json")
+    identify(newtonian_recording, ["newtonian", "power_law"], config=FAST.replace(checkpoint_every=7), density=1000.0,
+             progress=False, checkpoint=out / "checkpoint.json",
+             fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=5))
     assert calls == []
 
 
@@ -535,11 +538,11 @@ def test_a_checkpoint_of_another_recording_is_refused_unless_overwritten(newtoni
     with pytest.raises(OutputError, match=f"^{re.escape(str(checkpoint))} holds a fit of recording synthetic "
                                           "\\(sha256 [0-9a-f]{12}…\\), not of doubled .*; use another out= or "
                                           "overwrite=true$"):
-        identify(doubled, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
-                 holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=checkpoint)
-    fresh = identify(doubled, ["newtonian"], config=FAST, density=1000.0, baseline=False, window=None,
-                     holdout_fraction=0.0, max_iterations=3, progress=False, size_estimate=False,
-                     checkpoint=checkpoint, overwrite=True)
+        identify(doubled, ["newtonian", "power_law"], config=FAST, density=1000.0, progress=False,
+                 checkpoint=checkpoint, fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=5))
+    fresh = identify(doubled, ["newtonian"], config=FAST, density=1000.0, baseline=False, progress=False,
+                     size_estimate=False, checkpoint=checkpoint, overwrite=True,
+                     fit=FitSettings(window=None, holdout_fraction=0.0, max_iterations=3))
     # a viscous drag doubles with η; the 2-D slice's is not exactly linear in η, so only "far from A's" is asserted
     assert fresh.fits["newtonian"].model.params_si()["eta"] > 1.5 * TRUE_ETA
     assert json.loads(checkpoint.read_text())["settings"]["recording"] == recording_digest(doubled)
@@ -737,9 +740,9 @@ def test_models_fitted_in_parallel_processes_equal_those_fitted_in_one(newtonian
     # each simulation is deterministic at a given thread count, so the worker processes must reproduce the
     # fits made in this process exactly, and write the same checkpoint
     result, out = newtonian_identification
-    parallel = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, window=None,
-                        holdout_fraction=0.25, max_iterations=5, progress=False, checkpoint=tmp_path / "c.json",
-                        workers=2)
+    parallel = identify(newtonian_recording, ["newtonian", "power_law"], config=FAST, density=1000.0, progress=False,
+                        checkpoint=tmp_path / "c.json", workers=2,
+                        fit=FitSettings(window=None, holdout_fraction=0.25, max_iterations=5))
     assert list(parallel.fits) == list(result.fits) == ["newtonian", "power_law", "corotated"]
     for name, fit in result.fits.items():
         np.testing.assert_array_equal(parallel.fits[name].theta, fit.theta)
@@ -774,8 +777,8 @@ def test_an_interrupted_start_resumes_from_its_last_iterate_and_finished_starts_
     from diffstir.fitting.jobs import FitJob
 
     checkpoint = tmp_path / "checkpoint.json"
-    kwargs = dict(config=FAST, density=1000.0, window=0.2, holdout_fraction=0.25, baseline=False, max_iterations=2,
-                  progress=False, checkpoint=checkpoint)
+    kwargs = dict(config=FAST, density=1000.0, baseline=False, progress=False, checkpoint=checkpoint,
+                  fit=FitSettings(window=0.2, holdout_fraction=0.25, max_iterations=2))
     identify(newtonian_recording, ["newtonian", "herschel_bulkley"], **kwargs)
     state = json.loads(checkpoint.read_text())
     done = state["done"]["fit"]

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable
 
 import hydra
+from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from hydra.errors import InstantiationException
@@ -26,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
 from diffstir.errors import ConfigError, DiffstirError
+from diffstir.fitting import FitSettings
 from diffstir.parallel import default_workers
 from diffstir.recording import load_recording
 from diffstir.recording.digest import recording_digest
@@ -33,6 +35,12 @@ from diffstir.recording.digest import recording_digest
 #: The project's Hydra configs (the repository's top-level conf/), as an absolute path so that the apps find them
 #: whether started as console scripts, with python -m, or from another working directory.
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+
+#: The schemas of the config nodes that have one, by name: a defaults entry ``- <name>@<node>`` composes the node on
+#: it, so that an unknown key or a value of the wrong type is refused when the command line is composed.
+SCHEMAS = {"fit_settings": FitSettings}
+for _name, _schema in SCHEMAS.items():
+    ConfigStore.instance().store(name=_name, node=_schema)
 
 
 def config_workers(cfg: DictConfig) -> int:
@@ -235,7 +243,8 @@ def check_overrides(name: str, config_name: str, args: list[str]) -> None:
                 parts[-1] += (" " if parts[-1].endswith(":") else ", ") + line.strip()
             elif line.strip() and not line.strip().startswith(("full_key:", "object_type=", "See https://")):
                 parts.append(line.strip())
-        print(f"{name}: error: {' '.join(parts)}", file=sys.stderr, flush=True)
+        cause = str(error.__cause__).splitlines()[0] if error.__cause__ is not None else ""
+        print(f"{name}: error: {' '.join(parts)}{': ' + cause if cause else ''}", file=sys.stderr, flush=True)
         sys.exit(2)
 
 

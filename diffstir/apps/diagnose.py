@@ -16,6 +16,7 @@ from omegaconf import DictConfig
 from diffstir.apps import Run, check_at_least, check_choices, check_processes, command, config_workers
 from diffstir.diagnosis import CANDIDATES, diagnose, write_diagnosis
 from diffstir.errors import ConfigError, OutputError
+from diffstir.fitting import FitSettings
 from diffstir.identification import identify
 from diffstir.recording import load_recording
 
@@ -42,9 +43,9 @@ def main(cfg: DictConfig) -> None:
                           "overwrite=true")
     if identification is None:
         identification = identify(recording, ["newtonian"], config=config, density=cfg.density, baseline=False,
-                                  window=cfg.window, holdout_fraction=0.0, max_iterations=cfg.identify_iterations,
-                                  progress=cfg.progress, sensor_nuisance=(), size_estimate=False,
-                                  workers=workers)
+                                  progress=cfg.progress, size_estimate=False, workers=workers,
+                                  fit=FitSettings(window=cfg.window, holdout_fraction=0.0,
+                                                  max_iterations=cfg.identify_iterations))
     result = diagnose(recording, identification, config=config, window=cfg.window, candidates=list(cfg.candidates),
                       max_iterations=int(cfg.max_iterations), rebuild_time=float(cfg.rebuild_time),
                       progress=bool(cfg.progress), workers=workers)

@@ -19,14 +19,12 @@ from diffstir.apps import (CONF_DIR, Run, check_at_least, check_choice, check_ch
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.behaviour.pipeline import SLOPE_TESTS
 from diffstir.errors import ConfigError, OutputError
-from diffstir.fitting import CRITERIA, NUISANCES, checked_model_error
+from diffstir.fitting import FitSettings, checked_model_error
 from diffstir.identification import identify
 from diffstir.identification.report import write_report
 from diffstir.mixing import analyse_mixing, time_windows, write_mixing_report
 from diffstir.recording import load_recording
 from diffstir.rheology import LAWS
-
-OPTIMIZERS = ("lm", "adam")
 
 
 @command("diffstir-fit", "fit")
@@ -38,21 +36,16 @@ def main(cfg: DictConfig) -> None:
         return behaviour(cfg)
     if "mixing" in cfg:
         return mixing(cfg)
-    check_fit_settings(cfg)
+    check_choices("model", list(cfg.model), sorted(LAWS))
+    settings = fit_settings(cfg)
     recording = load_recording(to_absolute_path(str(cfg.recording)))
     config = instantiate(cfg.sim)
     coarse = instantiate(cfg.coarse) if cfg.get("coarse") else None
     rectifier = rectifier_path(str(cfg.rectifier.checkpoint)) if cfg.rectifier.checkpoint else None
     out = Run.writes(Path(to_absolute_path(str(cfg.out))), "checkpoint.json")
-    result = identify(
-        recording, list(cfg.model), config=config, density=cfg.density, baseline=cfg.baseline,
-        window=cfg.fit.window, holdout_fraction=cfg.fit.holdout_fraction, max_iterations=cfg.fit.max_iterations,
-        optimizer=cfg.fit.optimizer, selection=cfg.fit.selection, checkpoint=out / "checkpoint.json",
-        progress=cfg.progress, log_dir=out / "tensorboard", coarse=coarse, fine_iterations=cfg.fit.fine_iterations,
-        sensor_nuisance=tuple(cfg.fit.sensor_nuisance), model_error=cfg.fit.model_error,
-        inertial_error=cfg.fit.inertial_error, slice_correction=bool(cfg.fit.slice_correction),
-        workers=config_workers(cfg), overwrite=bool(cfg.overwrite),
-    )
+    result = identify(recording, list(cfg.model), config=config, fit=settings, coarse=coarse, density=cfg.density,
+                      baseline=cfg.baseline, checkpoint=out / "checkpoint.json", progress=cfg.progress,
+                      log_dir=out / "tensorboard", workers=config_workers(cfg), overwrite=bool(cfg.overwrite))
     if rectifier is not None:
         result.refined = refined_viscosity(result, rectifier)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
@@ -64,31 +57,10 @@ def main(cfg: DictConfig) -> None:
         diagnose_if_poor(result, cfg, out)
 
 
-def check_fit_settings(cfg: DictConfig) -> None:
-    """Raise ConfigError for a setting the fit would refuse only after simulating: the laws, the optimizer, the
-    selection criterion, the sensor nuisances."""
-    check_choices("model", list(cfg.model), sorted(LAWS))
-    check_choice("fit.optimizer", cfg.fit.optimizer, OPTIMIZERS)
-    check_choice("fit.selection", cfg.fit.selection, CRITERIA)
-    check_choices("fit.sensor_nuisance", list(cfg.fit.sensor_nuisance), NUISANCES)
-    check_at_least("fit.max_iterations", cfg.fit.max_iterations, 1)
-    check_at_least("fit.fine_iterations", cfg.fit.fine_iterations, 0)
-    checked_model_error(cfg.fit.model_error, "fit.model_error")
-    checked_model_error(cfg.fit.inertial_error, "fit.inertial_error")
-    if not isinstance(cfg.fit.slice_correction, bool):
-        raise ConfigError(f"fit.slice_correction = {cfg.fit.slice_correction!r}; expected true or false")
-    if cfg.fit.sensor_nuisance and cfg.fit.optimizer != "lm":
-        raise ConfigError(f"fit.sensor_nuisance = {list(cfg.fit.sensor_nuisance)} needs fit.optimizer = lm "
-                          f"(got {cfg.fit.optimizer!r})")
-    if cfg.fit.selection == "holdout" and not cfg.fit.holdout_fraction:
-        raise ConfigError("fit.selection = 'holdout' needs held-out samples; set fit.holdout_fraction > 0 (a "
-                          "fraction of the window, 1)")
-    holdout, window = cfg.fit.holdout_fraction, cfg.fit.window
-    if not (isinstance(holdout, (int, float)) and 0.0 <= holdout < 1.0):
-        raise ConfigError(f"fit.holdout_fraction = {holdout!r}; expected a fraction of the window in [0, 1)")
-    if window is not None and not (isinstance(window, (int, float)) and window > 0.0):
-        raise ConfigError(f"fit.window = {window!r} s; expected a positive duration in s, or null (all of the "
-                          "recording)")
+def fit_settings(cfg: DictConfig) -> FitSettings:
+    """The ``fit:`` settings, composed on their schema (``FitSettings``, registered in ``diffstir.apps``), as the
+    checked dataclass: a value outside its range or choices is a ConfigError before any simulation."""
+    return OmegaConf.to_object(cfg.fit)
 
 
 def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:

@@ -29,6 +29,9 @@ from .models import FitModel
 from .nuisance import NO_NUISANCE, SensorNuisance, lag_response
 from .problem import FitProblem
 
+#: The optimisers of ``fit_model``: trust-region Gauss-Newton on the soft-L1 cost, and the paper's Adam.
+OPTIMIZERS = ("lm", "adam")
+
 #: Smallest step in θ that updates the Broyden Jacobian: 100 float32 ulps of a relative change; a smaller step
 #: cannot change the simulation's float32 parameters, so its secant carries no information.
 MIN_SECANT_STEP = 100 * float(np.finfo(np.float32).eps)
@@ -290,7 +293,7 @@ def fit_model(problem: FitProblem, model: FitModel, *, max_iterations: int = 6, 
         best, message = _adam(problem, model, readings, theta0, max_iterations, learning_rate, record)
         converged = False
     else:
-        raise ValueError(f"fit.optimizer = {optimizer!r}; expected 'lm' or 'adam'")
+        raise ValueError(f"fit.optimizer = {optimizer!r}; choose from {', '.join(OPTIMIZERS)}")
     # the optimiser's own θ, not one read back from the float32 parameters: the readings there are cached, and a
     # rounding-sized step would otherwise cost a simulation and a degenerate Broyden update
     theta = np.clip(np.asarray(best, dtype=np.float64), model.lower, model.upper)

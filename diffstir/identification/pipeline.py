@@ -22,11 +22,10 @@ import numpy as np
 
 from ..density import density_estimate
 from ..errors import OutputError
-from ..fitting import (DEFAULT_NUISANCES, INERTIAL_FORCE_ERROR, LADDER_VISCOSITIES, MAGNITUDE_STEPS, MODEL_FORCE_ERROR,
-                       PROBE_INDEX_STEP, SHEAR_RATE_PROBES, FitModel, FitResult, Identification, MagnitudeJob, Progress,
-                       SensorNuisance, StirProblem, ViscosityLadder, Windows, bic, checked_model_error,
-                       effective_shear_rate, fit_simulations, force_error, laplace, mean_readings_on,
-                       mean_stirring_speed, noise_scale, select)
+from ..fitting import (LADDER_VISCOSITIES, MAGNITUDE_STEPS, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, FitModel, FitResult,
+                       FitSettings, Identification, MagnitudeJob, Progress, SensorNuisance, StirProblem,
+                       ViscosityLadder, Windows, bic, effective_shear_rate, fit_simulations, force_error, laplace,
+                       mean_readings_on, mean_stirring_speed, noise_scale, select)
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..parallel import Workers
@@ -40,68 +39,54 @@ from .stages import SECANT_STEPS, Plan, Stage
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
 
-def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, density: float | None = None,
-             baseline: bool = True, window: float | None = 2.0, holdout_fraction: float = 0.25,
-             max_iterations: int = 6, optimizer: str = "lm", selection: str = "bic",
+def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, fit: FitSettings | None = None,
+             coarse: SimConfig | None = None, density: float | None = None, baseline: bool = True,
              checkpoint: str | Path | None = None, progress: bool = True, log_dir: str | Path | None = None,
-             coarse: SimConfig | None = None, fine_iterations: int = 3,
-             sensor_nuisance=DEFAULT_NUISANCES, model_error: float = MODEL_FORCE_ERROR,
-             inertial_error: float = INERTIAL_FORCE_ERROR, size_estimate: bool = True, slice_correction: bool = True,
-             workers: int = 1, overwrite: bool = False) -> Identification:
+             size_estimate: bool = True, workers: int = 1, overwrite: bool = False) -> Identification:
     """Fit every model in ``models`` (and the corotated baseline) to ``recording``; see the module docstring.
 
     Args:
         recording: a loaded recording.
         models: law names (``diffstir.rheology.LAWS``); the Newtonian law is always fitted first.
-        config: the simulator's resolution and numerics for fitting.
+        config: the simulator's resolution and numerics for fitting (the fine stage, with ``coarse``).
+        fit: how each law is fitted, its intervals and the selection (``FitSettings``; None: its defaults, those
+            of ``diffstir-fit``).
+        coarse: a coarser, faster simulation to fit on first (coarse-to-fine): every model is fitted there from
+            scratch, then refined on ``config`` for ``fit.fine_iterations`` Broyden steps that start from the
+            coarse fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
         density: the fluid's density [kg/m³]; required when the recording has no density block, otherwise the
             Archimedes estimate is used and this is ignored.
-        window: fit the first ``window`` seconds of the recording (None: all of it).
-        holdout_fraction: the last fraction of the window that is held out of the fit.
-        max_iterations, optimizer: see :func:`~diffstir.fitting.optimise.fit_model`.
-        selection: ``"bic"``, ``"holdout"`` or ``"loss"`` (see ``selection``).
+        baseline: also fit the paper's corotated baseline.
         checkpoint: a JSON file to resume from and save to after every iteration. It holds the recording's
             content digest (``recording.digest``) and the settings; a checkpoint of another recording or of other
             settings is refused (``OutputError``) unless ``overwrite``.
         progress: show a progress bar.
         log_dir: TensorBoard log directory (None: no logs).
-        coarse: a coarser, faster simulation to fit on first (coarse-to-fine): every model is fitted there from
-            scratch, then refined on ``config`` for ``fine_iterations`` Broyden steps that start from the coarse
-            fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
-        sensor_nuisance: sensor parameters profiled out of every fit (``nuisance``: "lag", "offset"; () for
-            none).
-        model_error: the relative 1-σ error σ_m of ``config``'s simulated force, added to every interval
-            (``uncertainty``; 0: the intervals hold the noise only).
-        inertial_error: the relative 1-σ error σ_i of the part of ``config``'s simulated force that does not scale
-            with the fluid's stress (its inertial part), added to every interval (``uncertainty``).
         size_estimate: also estimate the Newtonian viscosity from the size of the reading (``magnitude``), beside
             the fits; a caller that reads only the fits (the diagnosis) saves its simulations with False.
-        slice_correction: a 2-D fit reads F'_2D h C, C the slice's correction for the recording's rig (False:
-            F'_2D h, the paper's extruded slice, whose error docs/accuracy.md measures).
         workers: processes that run the fits side by side (1: in this process).
         overwrite: start afresh, replacing a checkpoint of another recording or of other settings.
     """
-    checked_model_error(model_error, "fit.model_error")
-    checked_model_error(inertial_error, "fit.inertial_error")
+    settings = FitSettings() if fit is None else fit
     unknown = sorted(set(models) - set(LAWS))
     if unknown:  # before minutes of fitting, not when their turn comes
         raise ValueError(f"model = {unknown}: unknown laws; choose from {sorted(LAWS)} (the corotated baseline is "
                          "fitted with baseline=true)")
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
-    windows = Windows.of(recording, window, holdout_fraction)
+    windows = Windows.of(recording, settings.window, settings.holdout_fraction)
     windows.dead_start.require_signal()
-    problem = StirProblem(recording, config, density_report["value"], windows, corrected=slice_correction)
+    problem = StirProblem(recording, config, density_report["value"], windows, corrected=settings.slice_correction)
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
-    sensor = SensorNuisance(tuple(sensor_nuisance))
-    settings = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
-                "models": names, "window": window, "holdout_fraction": holdout_fraction, "optimizer": optimizer,
-                "max_iterations": max_iterations, **config.force_settings(), "density": density_report["value"],
-                "slice_correction": (slice_correction_table()["coefficients"] if config.dim == 2 and slice_correction
+    sensor = SensorNuisance(tuple(settings.sensor_nuisance))
+    fingerprint = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
+                "models": names, "window": settings.window, "holdout_fraction": settings.holdout_fraction, "optimizer": settings.optimizer,
+                "max_iterations": settings.max_iterations, **config.force_settings(), "density": density_report["value"],
+                "slice_correction": (slice_correction_table()["coefficients"] if config.dim == 2 and settings.slice_correction
                                      else None),
                 "shear_rate_probes": PROBE_INDEX_STEP,
-                "coarse": None if coarse is None else {**coarse.force_settings(), "fine_iterations": fine_iterations}}
-    state = _load_checkpoint(checkpoint, settings, recording_label(recording), overwrite)
+                "coarse": None if coarse is None else {**coarse.force_settings(), "fine_iterations": settings.fine_iterations}}
+    state = _load_checkpoint(checkpoint, fingerprint, recording_label(recording), overwrite)
 
     def save() -> None:
         if checkpoint is not None:
@@ -149,16 +134,16 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
 
     state.setdefault("dt", {})
     if coarse is None:
-        stages = (Stage("fit", problem, max_iterations),)
+        stages = (Stage("fit", problem, settings.max_iterations),)
     else:
-        stages = (Stage("coarse", problem.with_config(coarse), max_iterations),
-                  Stage("fine", problem, fine_iterations))
+        stages = (Stage("coarse", problem.with_config(coarse), settings.max_iterations),
+                  Stage("fine", problem, settings.fine_iterations))
     tracker = Progress(_expected_simulations(stages, names, state, size_estimate), bar=progress, log_dir=log_dir)
     with Workers(workers, on_event) as pool:
         start_estimates(stages[0], pool)
         tracker.finished("start")
         plan = Plan(stages, names, ladder_estimate=state["ladder"]["estimate"],
-                    shear_rate=state["effective_shear_rate"], optimizer=optimizer, sensor=sensor, stage_dt=stage_dt,
+                    shear_rate=state["effective_shear_rate"], optimizer=settings.optimizer, sensor=sensor, stage_dt=stage_dt,
                     done=state["done"], running=state["running"])
         magnitude_pending = False
 
@@ -173,7 +158,7 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
             newtonian = plan.fits[stages[-1].name].get("newtonian")
             if size_estimate and newtonian is not None and "magnitude" not in state and not magnitude_pending:
                 eta = newtonian.model.params_si()["eta"]
-                error = force_error(model_error, problem.slice_correction(newtonian.model.material))
+                error = force_error(settings.model_error, problem.slice_correction(newtonian.model.material))
                 pool.submit(MagnitudeJob(stages[-1].name, "magnitude", problem, eta, error))
                 magnitude_pending = True
 
@@ -194,9 +179,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     uncertainty = {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
                                                                         problem.times, fit.sensor, train),
                                  residuals[name], fit.simulated_readings[train],
-                                 force_error(model_error, problem.slice_correction(fit.model.material)),
+                                 force_error(settings.model_error, problem.slice_correction(fit.model.material)),
                                  viscous_readings=fit.jacobian[train] @ fit.model.stress_direction(),
-                                 inertial_error=inertial_error)
+                                 inertial_error=settings.inertial_error)
                    for name, fit in fits.items()}
     # one sample count for every model, or BIC would compare likelihoods of different data: that of the
     # best-fitting model, whose residuals are the closest to the noise
@@ -205,13 +190,13 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     bics = {name: bic(r, fits[name].model.size + sensor.size, n_effective) for name, r in residuals.items()}
     laws = [n for n in fits if n != "corotated"]
     chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
-                    {n: fits[n].holdout_loss for n in laws}, selection)
+                    {n: fits[n].holdout_loss for n in laws}, settings.selection)
     chosen["bic"] = bics
     tracker.close(f"selected {chosen['selected']}")
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
-                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=model_error,
-                          inertial_error=inertial_error,
+                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=settings.model_error,
+                          inertial_error=settings.inertial_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
                           magnitude=state.get("magnitude"))
 
