@@ -35,9 +35,9 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.behaviour import CLASSES, characterise
+from diffstir.behaviour import CLASSES, SLOPE_TESTS, BehaviourSettings, characterise
 from diffstir.behaviour.classify import slope_agreement
-from diffstir.behaviour.pipeline import SLOPE_TESTS, reclassify, reported_joint_index
+from diffstir.behaviour.pipeline import reclassify, reported_joint_index
 from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR
 from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise
 from diffstir.recording import RecordingError
@@ -151,9 +151,10 @@ def simulated(args: argparse.Namespace):
         t0 = time.perf_counter()
         lab = lab_recording(name, args)
         try:
-            result = characterise([lab.recording], config=fit_config, iterations=args.iterations,
-                                  joint_models=args.joint_models, joint_iterations=args.joint_iterations,
-                                  model_error=args.model_error, slope_test=args.slope_test, workers=args.workers)
+            result = characterise([lab.recording], config=fit_config, workers=args.workers,
+                                  settings=BehaviourSettings(iterations=args.iterations, joint_models=args.joint_models,
+                                                             joint_iterations=args.joint_iterations,
+                                                             model_error=args.model_error, slope_test=args.slope_test))
         except RecordingError as error:
             print(f"| {name} | {truth} | refused: {error} | - | - | - | - | {time.perf_counter() - t0:.0f} |",
                   flush=True)

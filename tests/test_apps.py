@@ -72,7 +72,7 @@ def test_experiment_settings_missing_values_and_other_apps_are_refused_in_one_li
                        cwd=tmp_path), "diffstir-fit", "behaviour.slope_test = 't'; choose from combined")
     assert_refused(run("diffstir-fit", "experiment=behaviour", f"recordings=[{EXAMPLE}]",
                        "behaviour.inertial_error=-1", cwd=tmp_path), "diffstir-fit",
-                   "behaviour.inertial_error = -1; expected a relative force error in [0, 1)")
+                   "behaviour.inertial_error = -1.0; expected a relative force error in [0, 1)")
     assert_refused(run("diffstir-fit", cwd=tmp_path), "diffstir-fit", "Missing mandatory value: recording")
     assert_refused(run("diffstir-diagnose", f"recording={EXAMPLE}", "candidates=[sensor_lag,gremlins]",
                        cwd=tmp_path), "diffstir-diagnose", "candidates: unknown gremlins; choose from sensor_lag")

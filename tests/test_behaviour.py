@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from diffstir.behaviour import CLASSES, characterise, classify, joint_yield_test, log_slope
+from diffstir.behaviour import CLASSES, BehaviourSettings, characterise, classify, joint_yield_test, log_slope
 from diffstir.behaviour.classify import YIELD_CRITICAL, SlopeEstimate, combined_slope, slope_agreement
 from diffstir.behaviour.joint import paste_start
 from diffstir.behaviour.pipeline import reclassify
+from diffstir.errors import ConfigError
 from diffstir.fitting.apparent import with_baseline
 from diffstir.fitting.problem import rig_from_recording
 from diffstir.fitting.uncertainty import Z95, effective_samples
@@ -266,12 +267,13 @@ def test_a_recording_without_a_steady_speed_is_refused_before_any_simulation(mon
         characterise([programme_recording(), unsteady], config=FAST, density=1000.0)
 
 
-def test_characterise_refuses_an_unknown_slope_test_before_simulating():
-    recording = programme_recording()
-    with pytest.raises(ValueError, match="behaviour.slope_test = 'index'; expected one of"):
-        characterise([recording], config=FAST, slope_test="index")
-    with pytest.raises(ValueError, match="add power_law to behaviour.joint_models"):
-        characterise([recording], config=FAST, slope_test="joint_index", joint_models=("herschel_bulkley",))
+def test_the_settings_refuse_an_unknown_slope_test_before_simulating():
+    with pytest.raises(ConfigError, match="behaviour.slope_test = 'index'; choose from combined, points, joint_index"):
+        BehaviourSettings(slope_test="index")
+    with pytest.raises(ConfigError, match="add power_law to behaviour.joint_models"):
+        BehaviourSettings(slope_test="joint_index", joint_models=["herschel_bulkley"])
+    with pytest.raises(ConfigError, match="behaviour.joint_models: unknown casson; choose from bingham"):
+        BehaviourSettings(joint_models=["newtonian", "casson"])
 
 
 def test_a_falling_index_leaves_the_yield_stress_to_the_yield_tests():
@@ -330,7 +332,8 @@ def lab_recordings():
 
 
 def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_recordings):
-    result = characterise([lab_recordings["newtonian"]], config=FAST, iterations=2, joint_models=(), replicates=50)
+    result = characterise([lab_recordings["newtonian"]], config=FAST,
+                          settings=BehaviourSettings(iterations=2, joint_models=[], replicates=50))
     assert result.classification.label == "newtonian"
     for p in result.points:  # the truth and the fit share the simulator: each interval holds the truth
         lo, hi = p.ci95
@@ -350,9 +353,10 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings, capsys):
     # the truth is FAST's own simulator, so its inertial force is exact here: σ_i, the 2.5 mm slice's error against
     # a finite-element reference, would be a per-window error this recording does not have (at 0.16 m/s on 1 cm
     # cells the thinned fluid's reading is largely inertial, and σ_i widens n's interval past 1)
-    result = characterise([lab_recordings["thinning"]], config=FAST, iterations=2,
-                          joint_models=("newtonian", "power_law"), joint_iterations=4, replicates=50, workers=2,
-                          slope_test="joint_index", inertial_error=0.0, progress=True)
+    result = characterise([lab_recordings["thinning"]], config=FAST, workers=2, progress=True,
+                          settings=BehaviourSettings(iterations=2, joint_models=["newtonian", "power_law"],
+                                                     joint_iterations=4, replicates=50, slope_test="joint_index",
+                                                     inertial_error=0.0))
     c = result.classification
     # Metzner-Otto: a power law's Newtonian-equivalent viscosity goes as U^(n-1) in creeping flow; inertia and the
     # capped far field flatten it, so the per-speed slope only has to be negative; the joint fit, through the same
@@ -406,7 +410,8 @@ def test_recordings_windows_side_by_side_equal_those_in_one_process(lab_recordin
     # each recording's windows are one job (its windows in order, each ladder started from the one before); two
     # recordings in two worker processes give the points of one process, in the recordings' order
     recordings = [lab_recordings["newtonian"], lab_recordings["thinning"]]
-    one, two = (characterise(recordings, config=FAST, iterations=1, joint_models=(), replicates=20, workers=w)
+    one, two = (characterise(recordings, config=FAST, workers=w,
+                             settings=BehaviourSettings(iterations=1, joint_models=[], replicates=20))
                 for w in (1, 2))
     assert [p.window.label for p in two.points] == [p.window.label for p in one.points]
     assert [p.window.recording.source("csv") for p in two.points][0] == recordings[0].source("csv")

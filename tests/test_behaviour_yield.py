@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.behaviour import characterise, write_behaviour_report
+from diffstir.behaviour import BehaviourSettings, characterise, write_behaviour_report
 from diffstir.behaviour.joint import (INDEX_SHIFTS, PASTE_SHARES, JointProblem, index_starts, paste_start,
                                       screened_starts)
 from diffstir.fitting.models import FitModel
@@ -44,8 +44,9 @@ def test_joint_fit_tells_a_yield_stress_from_a_power_law(law, label, tmp_path):
     # sees. On FAST the lab's truth and the fit's replay of it differ by more than that, so the readings here are
     # the fitting model's own, with 1 mN of white noise
     recording = model_readings(programme_recording(), law, noise=0.001, seed=2)
-    result = characterise([recording], config=FAST, density=DENSITY, iterations=1,
-                          joint_models=("power_law", "herschel_bulkley"), replicates=50, workers=2)
+    result = characterise([recording], config=FAST, density=DENSITY, workers=2,
+                          settings=BehaviourSettings(iterations=1, joint_models=["power_law", "herschel_bulkley"],
+                                                     replicates=50))
     c = result.classification
     assert c.label == label
     if label == "yield_stress":  # strong evidence at least: 2 ln B > 6

@@ -14,6 +14,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from diffstir.apps import CONF_DIR, run_folder
 from diffstir.apps.synth import lab_setup
+from diffstir.behaviour import BehaviourSettings
 from diffstir.fitting import FitSettings
 
 APPS = sorted(path.stem for path in Path(CONF_DIR).glob("*.yaml"))
@@ -106,3 +107,9 @@ def test_the_fit_block_composes_on_its_schema_to_its_defaults():
     settings = OmegaConf.to_object(composed("fit").fit)
     assert isinstance(settings, FitSettings)
     assert settings == FitSettings()
+
+
+def test_the_behaviour_block_composes_on_its_schema_to_its_defaults():
+    settings = OmegaConf.to_object(composed("fit", ["experiment=behaviour"]).behaviour)
+    assert isinstance(settings, BehaviourSettings)
+    assert settings == BehaviourSettings()

@@ -26,6 +26,7 @@ from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
+from diffstir.behaviour import BehaviourSettings
 from diffstir.errors import ConfigError, DiffstirError
 from diffstir.fitting import FitSettings
 from diffstir.parallel import default_workers
@@ -38,7 +39,7 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 #: The schemas of the config nodes that have one, by name: a defaults entry ``- <name>@<node>`` composes the node on
 #: it, so that an unknown key or a value of the wrong type is refused when the command line is composed.
-SCHEMAS = {"fit_settings": FitSettings}
+SCHEMAS = {"fit_settings": FitSettings, "behaviour_settings": BehaviourSettings}
 for _name, _schema in SCHEMAS.items():
     ConfigStore.instance().store(name=_name, node=_schema)
 

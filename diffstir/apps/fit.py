@@ -14,10 +14,8 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import (CONF_DIR, Run, check_at_least, check_choice, check_choices, check_processes, command,
-                           config_workers)
+from diffstir.apps import CONF_DIR, Run, check_at_least, check_choices, check_processes, command, config_workers
 from diffstir.behaviour import characterise, write_behaviour_report
-from diffstir.behaviour.pipeline import SLOPE_TESTS
 from diffstir.errors import ConfigError, OutputError
 from diffstir.fitting import FitSettings, checked_model_error
 from diffstir.identification import identify
@@ -102,27 +100,15 @@ def refined_viscosity(result, path: Path) -> dict:
 
 def behaviour(cfg: DictConfig) -> None:
     """``experiment=behaviour``: classify the fluid of ``recordings`` (docs/behaviour.md)."""
-    b = cfg.behaviour
-    checked_model_error(b.model_error, "behaviour.model_error")
-    checked_model_error(b.inertial_error, "behaviour.inertial_error")
-    check_at_least("behaviour.iterations", b.iterations, 1)
-    check_choices("behaviour.joint_models", list(b.joint_models), sorted(LAWS))
-    check_choice("behaviour.slope_test", b.slope_test, SLOPE_TESTS)
-    if b.slope_test == "joint_index" and "power_law" not in b.joint_models:
-        raise ConfigError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law "
-                          f"to behaviour.joint_models (got {list(b.joint_models)})")
+    settings = OmegaConf.to_object(cfg.behaviour)  # a BehaviourSettings, checked (its schema)
     if not cfg.recordings:
         raise ConfigError("recordings = []; give recordings=[a,b,...], recording directories of one fluid")
     recordings = [load_recording(to_absolute_path(str(r))) for r in cfg.recordings]
     config = instantiate(cfg.sim)
     out = Run.writes(Path(to_absolute_path(str(cfg.out))))
     refuse_existing(out, "report.json", cfg.overwrite)
-    result = characterise(recordings, config=config, density=cfg.density, iterations=b.iterations,
-                          joint_models=list(b.joint_models), joint_iterations=b.joint_iterations,
-                          speed_tolerance=b.speed_tolerance, min_window=b.min_window, pause_speed=b.pause_speed,
-                          replicates=b.replicates, seed=b.seed, model_error=b.model_error,
-                          inertial_error=b.inertial_error, slope_test=b.slope_test, workers=config_workers(cfg),
-                          progress=bool(cfg.progress))
+    result = characterise(recordings, config=config, settings=settings, density=cfg.density,
+                          workers=config_workers(cfg), progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_behaviour_report(result, out)
     b = result.summary()["behaviour"]

@@ -6,9 +6,10 @@ speeds at once. See docs/behaviour.md.
 from .classify import (CLASSES, Classification, JointYieldTest, Slope, SlopeEstimate, classify, combined_slope,
                        joint_yield_test, log_slope)
 from .joint import JointFit, JointProblem, joint_fit
-from .pipeline import JOINT_MODELS, SLOPE_TESTS, Behaviour, characterise, reclassify
+from .pipeline import Behaviour, characterise, reclassify
 from .report import write_behaviour_report
+from .settings import JOINT_MODELS, SLOPE_TESTS, BehaviourSettings
 
-__all__ = ["CLASSES", "JOINT_MODELS", "SLOPE_TESTS", "Behaviour", "Classification", "JointFit", "JointProblem",
-           "JointYieldTest", "Slope", "SlopeEstimate", "characterise", "classify", "combined_slope", "joint_fit",
-           "joint_yield_test", "log_slope", "reclassify", "write_behaviour_report"]
+__all__ = ["Behaviour", "BehaviourSettings", "CLASSES", "Classification", "JOINT_MODELS", "JointFit", "JointProblem",
+           "JointYieldTest", "SLOPE_TESTS", "Slope", "SlopeEstimate", "characterise", "classify", "combined_slope",
+           "joint_fit", "joint_yield_test", "log_slope", "reclassify", "write_behaviour_report"]

@@ -21,8 +21,9 @@ from functools import partial
 import numpy as np
 
 from ..density import combined_density
-from ..fitting import (INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, PAUSE_SPEED, Z95, FitModel, Progress, ViscosityPoint,
-                       WindowsJob, speed_windows, window_event, window_simulations)
+from ..errors import ConfigError
+from ..fitting import (MODEL_FORCE_ERROR, Z95, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
+                       window_event, window_simulations)
 from ..mpm import SimConfig
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
@@ -30,12 +31,7 @@ from ..rheology import has_yield_stress
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
 from .joint import JointFit, joint_fit, joint_simulations, yield_share
-
-#: Laws fitted to all speeds at once by default.
-JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
-#: What the slope test reads (``classify``, 1 and 4): the per-speed points, the joint power law's index, or the two
-#: combined (the points alone where the power law was not fitted jointly).
-SLOPE_TESTS = ("combined", "points", "joint_index")
+from .settings import SLOPE_TESTS, BehaviourSettings
 
 
 @dataclass
@@ -69,35 +65,19 @@ class Behaviour:
                 "joint_fit": None if self.joint is None else self.joint.summary(), "seconds": self.seconds}
 
 
-def characterise(recordings: list[Recording], *, config: SimConfig, density: float | None = None,
-                 iterations: int = 3, joint_models=JOINT_MODELS, joint_iterations: int = 5,
-                 speed_tolerance: float = 0.05, min_window: float = 0.3, pause_speed: float = PAUSE_SPEED,
-                 replicates: int = 200, seed: int = 0, model_error: float = MODEL_FORCE_ERROR,
-                 inertial_error: float = INERTIAL_FORCE_ERROR, slope_test: str = "combined", workers: int = 1,
-                 progress: bool = False) -> Behaviour:
+def characterise(recordings: list[Recording], *, config: SimConfig, settings: BehaviourSettings | None = None,
+                 density: float | None = None, workers: int = 1, progress: bool = False) -> Behaviour:
     """Classify the fluid of ``recordings`` (one fluid; each recording at one speed or a programme of several).
 
     Args:
         config: the simulation the windows are fitted on.
+        settings: the windows, fits, tests and errors (``BehaviourSettings``; None: its defaults, those of
+            ``diffstir-fit experiment=behaviour``). With laws both with and without a yield stress among
+            ``settings.joint_models``, the joint fit decides the yield stress (``classify``, 3), counting a yield
+            stress that carries more than ``YIELD_SHARE_SIGMAS`` σ_m of the stress at the slowest speed; with the
+            power law among them, the report compares its index with the points' slope
+            (``classify.slope_agreement``).
         density: the fluid's density [kg/m³], used only when no recording has a density block.
-        iterations: Gauss-Newton iterations of each window's Newtonian fit.
-        joint_models: laws fitted to all speeds at once (empty: no joint fit); ``joint_iterations`` their
-            Gauss-Newton iterations. With laws both with and without a yield stress among them, the joint fit
-            decides the yield stress (``classify``, 3), counting a yield stress that carries more than
-            ``YIELD_SHARE_SIGMAS`` σ_m of the stress at the slowest speed. With the power law among them, the
-            report compares its index with the points' slope (``classify.slope_agreement``).
-        speed_tolerance, min_window, pause_speed: what counts as one speed (``windows.speed_windows``).
-        replicates, seed: the bootstrap of the class's confidence (``classify.classify``).
-        model_error: the relative 1-σ error σ_m of ``config``'s simulated force, in every window's interval
-            (``apparent``) and the joint laws' covariances; the default is the fitting grid's
-            (``fitting.uncertainty``), raise it for a coarser one (``COARSE_FORCE_ERROR`` for
-            ``conf/sim/coarse2d.yaml``).
-        inertial_error: the relative 1-σ error σ_i of the inertial part of ``config``'s simulated force, in the
-            same intervals and covariances (``fitting.uncertainty``; the default is the fitting grid's).
-        slope_test: ``"combined"``, the points' slope and the joint power law's n − 1 combined, their error
-            scaled by their disagreement (``classify``, 4; the points alone without a joint power law);
-            ``"points"``, the slope of the per-speed points (``classify``, 1); ``"joint_index"``, the joint power
-            law's n − 1 alone (needs the power law in ``joint_models``).
         workers: processes that run the recordings' windows side by side (``WindowsJob``: a recording's windows in
             order), then the joint laws (``joint.joint_fit``); 1: in this process.
         progress: show a progress bar of the simulations (``fitting.progress``): one task per window and one
@@ -106,19 +86,19 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
     started = time.perf_counter()
     if not recordings:
         raise ValueError("behaviour: no recordings; give recordings=[a,b,...] of one fluid")
-    _check_slope_test(slope_test)
-    if slope_test == "joint_index" and "power_law" not in joint_models:
-        raise ValueError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law to "
-                         f"behaviour.joint_models (got {list(joint_models)})")
+    settings = BehaviourSettings() if settings is None else settings
     rho = combined_density(recordings, density)
-    windows = [speed_windows(rec, tolerance=speed_tolerance, min_duration=min_window, pause_speed=pause_speed)
+    windows = [speed_windows(rec, tolerance=settings.speed_tolerance, min_duration=settings.min_window,
+                             pause_speed=settings.pause_speed)
                for rec in recordings]  # every recording's, before the first simulation
-    expected = {label: window_simulations(k > 0, iterations)
+    expected = {label: window_simulations(k > 0, settings.iterations)
                 for recording_windows in windows for k, label in enumerate(w.label for w in recording_windows)}
-    expected.update({f"joint {name}": joint_simulations(name, joint_iterations) for name in joint_models})
+    expected.update({f"joint {name}": joint_simulations(name, settings.joint_iterations)
+                     for name in settings.joint_models})
     with Progress(expected, bar=progress, label="behaviour") as tracker:
-        jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], iterations, model_error,
-                           inertial_error) for k, recording_windows in enumerate(windows) if recording_windows]
+        jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], settings.iterations,
+                           settings.model_error, settings.inertial_error)
+                for k, recording_windows in enumerate(windows) if recording_windows]
         with Workers(min(workers, len(jobs)), partial(window_event, tracker)) as pool:
             points = [p for recording_points in pool.map(jobs) for p in recording_points]
         used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
@@ -129,19 +109,19 @@ def characterise(recordings: list[Recording], *, config: SimConfig, density: flo
         k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
         rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
         result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used],
-                          replicates=replicates, seed=seed)
+                          replicates=settings.replicates, seed=settings.seed)
         joint, index, test = None, None, None
-        if joint_models:
-            joint = joint_fit(used, rates, config, rho["value"], list(joint_models), iterations=joint_iterations,
-                              workers=workers, model_error=model_error, inertial_error=inertial_error,
-                              report=partial(_joint_evaluation, tracker))
-            for name in joint_models:
+        if settings.joint_models:
+            joint = joint_fit(used, rates, config, rho["value"], list(settings.joint_models),
+                              iterations=settings.joint_iterations, workers=workers, model_error=settings.model_error,
+                              inertial_error=settings.inertial_error, report=partial(_joint_evaluation, tracker))
+            for name in settings.joint_models:
                 tracker.finished(f"joint {name}")
             slope = joint.power_law_slope()
             index = None if slope is None else SlopeEstimate(*slope)
             test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())),
-                                    YIELD_SHARE_SIGMAS * model_error)
-        result = decide(result, index, test, slope_test)
+                                    YIELD_SHARE_SIGMAS * settings.model_error)
+        result = decide(result, index, test, settings.slope_test)
         tracker.close(f"{result.label} (confidence {result.confidence:.2f})")
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
 
@@ -181,7 +161,7 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
 
 def _check_slope_test(slope_test: str) -> None:
     if slope_test not in SLOPE_TESTS:
-        raise ValueError(f"behaviour.slope_test = {slope_test!r}; expected one of {list(SLOPE_TESTS)}")
+        raise ConfigError(f"behaviour.slope_test = {slope_test!r}; choose from {', '.join(SLOPE_TESTS)}")
 
 
 def reported_joint_index(summary: dict) -> SlopeEstimate | None:
