@@ -3,11 +3,11 @@
 A differentiable MLS-MPM stirring simulator in PyTorch, non-Newtonian rheology laws as ``nn.Module``s, and the
 analyses built on them. All quantities are SI (m, s, kg, N, Pa, Pa·s).
 
-    from diffstir import SimConfig, identify, load_recording
+    from diffstir import identify, load_recording
+    from diffstir.mpm import COARSE_STAGE, FINE_STAGE
 
-    result = identify(load_recording("diffstir/data/examples/carreau_example"),
-                      config=SimConfig(dim=2, dx=0.0025, pressure="projection", dt_max=0.002, max_substeps=15),
-                      coarse=SimConfig(dim=2, dx=0.005, dt_max=0.002))
+    result = identify(load_recording("diffstir/data/examples/carreau_example"), config=FINE_STAGE,
+                      coarse=COARSE_STAGE)
     result.summary()["selected"]
 
 The names below are loaded on first use, so that ``import diffstir.recording`` (a recording's checks) does not import

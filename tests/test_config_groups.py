@@ -16,6 +16,7 @@ from diffstir.apps import CONF_DIR, run_folder
 from diffstir.apps.synth import lab_setup
 from diffstir.behaviour import BehaviourSettings
 from diffstir.fitting import FitSettings
+from diffstir.mpm import COARSE_STAGE, FINE_STAGE
 
 APPS = sorted(path.stem for path in Path(CONF_DIR).glob("*.yaml"))
 #: Targets that open a device when built (a serial port, a robot's socket): their settings are bound to the
@@ -113,3 +114,10 @@ def test_the_behaviour_block_composes_on_its_schema_to_its_defaults():
     settings = OmegaConf.to_object(composed("fit", ["experiment=behaviour"]).behaviour)
     assert isinstance(settings, BehaviourSettings)
     assert settings == BehaviourSettings()
+
+
+def test_the_fit_stages_in_python_are_the_fit_presets():
+    # the README's and the API's FINE_STAGE and COARSE_STAGE are conf/sim/slice2d.yaml and coarse2d.yaml
+    cfg = composed("fit")
+    assert instantiate(cfg.sim) == FINE_STAGE
+    assert instantiate(cfg.coarse) == COARSE_STAGE

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 import diffstir
+from diffstir.mpm import COARSE_STAGE, FINE_STAGE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,4 +43,4 @@ def test_the_readmes_python_example_runs(monkeypatch):
     assert result.force.shape[1] == 2 and torch.isfinite(result.force).all()
     assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in law.parameters())
     assert bound["recording"].name == "carreau_example"
-    assert bound["config"] == namespace["config"] and bound["coarse"].dx == 0.005
+    assert bound["config"] == FINE_STAGE and bound["coarse"] == COARSE_STAGE

@@ -199,3 +199,11 @@ NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relax
             "wall_pressure")
 FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible",
                    "wall_pressure": False}
+
+#: The fit's fine stage (``conf/sim/slice2d.yaml``; a test holds them equal): the 2-D slice on 2.5 mm cells, its
+#: pressure solved for incompressibility, a 2 ms step of at most 15 viscous substeps.
+FINE_STAGE = SimConfig(dim=2, dx=0.0025, sound_speed=1.0, compressibility=0.03, pressure="projection",
+                       max_substeps=15, dt_max=0.002)
+#: The fit's coarse stage (``conf/sim/coarse2d.yaml``): the 2-D slice on 5 mm cells, its pressure from a sound speed
+#: raised per rollout so that the stir compresses the fluid by at most 3 %.
+COARSE_STAGE = SimConfig(dim=2, dx=0.005, sound_speed=1.0, compressibility=0.03, dt_max=0.002)
