@@ -15,7 +15,7 @@ MAX_LINES = 300
 SOURCES = ("README.md", "docs/*.md", "docs/data/**/README.md", "diffstir/**/*.py", "conf/**/*.yaml", "scripts/*",
            "tests/**/*.py", "checkpoints/**/*.md", "pyproject.toml")
 #: ``docs/<page>.md`` and, after a comma, what may name one of its sections (up to ``)``, ``;``, a sentence's end).
-REFERENCE = re.compile(r"docs/([a-z0-9-]+)\.md(?:,\s+([^;)\n]+?))?(?=[;)\n]|\.\s|\.$|$)")
+REFERENCE = re.compile(r"docs/([a-z0-9-]+)\.md`?(?:,\s+([^;)\n]+?)(?=[;)\n]|\.\s|\.$|$))?")
 
 
 def pages() -> list[Path]:
