@@ -33,7 +33,7 @@ from omegaconf import OmegaConf
 from diffstir.fitting.uncertainty import COARSE_FORCE_ERROR
 from diffstir.lab import (Blend, Fluid, SensorModel, simulate_truth, stirring_programme, synthesise_blend,
                           write_lab_recording)
-from diffstir.mixing import analyse_mixing, write_mixing_report
+from diffstir.mixing import MixingSettings, analyse_mixing, write_mixing_report
 from diffstir.rheology.blending import blend_range, lederer_roegiers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,8 +73,9 @@ def main() -> None:
                            name="blend")
     recording_dir, truth_file = write_lab_recording(lab, args.out / "blend", overwrite=True)
     truth_seconds = time.perf_counter() - started
-    result = analyse_mixing(lab.recording, config=fit_config, viscosities=(eta1, eta2), fraction=fraction,
-                            window=args.window, model_error=args.model_error)
+    result = analyse_mixing(lab.recording, config=fit_config,
+                            settings=MixingSettings(viscosities=[eta1, eta2], fraction=fraction, window=args.window,
+                                                    model_error=args.model_error))
     write_mixing_report(result, args.out / "report")
     m = result.summary()["mixing"]
     history = json.loads(truth_file.read_text())["mixing"]

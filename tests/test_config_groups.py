@@ -16,6 +16,7 @@ from diffstir.apps import CONF_DIR, run_folder
 from diffstir.apps.synth import lab_setup
 from diffstir.behaviour import BehaviourSettings
 from diffstir.fitting import FitSettings
+from diffstir.mixing import MixingSettings
 from diffstir.mpm import COARSE_STAGE, FINE_STAGE
 
 APPS = sorted(path.stem for path in Path(CONF_DIR).glob("*.yaml"))
@@ -121,3 +122,10 @@ def test_the_fit_stages_in_python_are_the_fit_presets():
     cfg = composed("fit")
     assert instantiate(cfg.sim) == FINE_STAGE
     assert instantiate(cfg.coarse) == COARSE_STAGE
+
+
+def test_the_mixing_block_composes_on_its_schema_to_its_defaults():
+    cfg = composed("fit", ["experiment=mixing", "mixing.viscosities=[1.0,0.1]", "mixing.fraction=0.5"])
+    settings = OmegaConf.to_object(cfg.mixing)
+    assert isinstance(settings, MixingSettings)
+    assert settings == MixingSettings(viscosities=[1.0, 0.1], fraction=0.5)

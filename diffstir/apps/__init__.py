@@ -29,6 +29,7 @@ from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 from diffstir.behaviour import BehaviourSettings
 from diffstir.errors import ConfigError, DiffstirError
 from diffstir.fitting import FitSettings
+from diffstir.mixing import MixingSettings
 from diffstir.parallel import default_workers
 from diffstir.recording import load_recording
 from diffstir.recording.digest import recording_digest
@@ -39,7 +40,7 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 #: The schemas of the config nodes that have one, by name: a defaults entry ``- <name>@<node>`` composes the node on
 #: it, so that an unknown key or a value of the wrong type is refused when the command line is composed.
-SCHEMAS = {"fit_settings": FitSettings, "behaviour_settings": BehaviourSettings}
+SCHEMAS = {"fit_settings": FitSettings, "behaviour_settings": BehaviourSettings, "mixing_settings": MixingSettings}
 for _name, _schema in SCHEMAS.items():
     ConfigStore.instance().store(name=_name, node=_schema)
 

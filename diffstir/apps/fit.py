@@ -17,7 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from diffstir.apps import CONF_DIR, Run, check_at_least, check_choices, check_processes, command, config_workers
 from diffstir.behaviour import characterise, write_behaviour_report
 from diffstir.errors import ConfigError, OutputError
-from diffstir.fitting import FitSettings, checked_model_error
+from diffstir.fitting import FitSettings
 from diffstir.identification import identify
 from diffstir.identification.report import write_report
 from diffstir.mixing import analyse_mixing, time_windows, write_mixing_report
@@ -120,21 +120,13 @@ def mixing(cfg: DictConfig) -> None:
     """``experiment=mixing``: the viscosity's time course of one recording of a blend (docs/mixing.md)."""
     if len(cfg.recordings) != 1:
         raise ConfigError(f"recordings = {list(cfg.recordings)}; experiment=mixing analyses one recording")
-    m = cfg.mixing
-    checked_model_error(m.model_error, "mixing.model_error")
-    check_at_least("mixing.iterations", m.iterations, 1)
-    if len(m.viscosities) != 2 or min(m.viscosities) <= 0:
-        raise ConfigError(f"mixing.viscosities = {list(m.viscosities)}; expected [eta1, eta2] in Pa·s, both "
-                          "positive, the more viscous first")
-    if not 0.0 < float(m.fraction) < 1.0:
-        raise ConfigError(f"mixing.fraction = {m.fraction}; expected fluid 1's volume fraction in (0, 1)")
+    settings = OmegaConf.to_object(cfg.mixing)  # a MixingSettings, checked (its schema)
     recording = load_recording(to_absolute_path(str(cfg.recordings[0])))
-    time_windows(recording, m.window)  # a time course's windows, before the output folder and any simulation
+    time_windows(recording, settings.window)  # a time course's windows, before the output folder and any simulation
     config = instantiate(cfg.sim)
     out = Run.writes(Path(to_absolute_path(str(cfg.out))))
     refuse_existing(out, "report.json", cfg.overwrite)
-    result = analyse_mixing(recording, config=config, viscosities=tuple(m.viscosities), fraction=m.fraction,
-                            window=m.window, density=cfg.density, iterations=m.iterations, model_error=m.model_error,
+    result = analyse_mixing(recording, config=config, settings=settings, density=cfg.density,
                             progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = write_mixing_report(result, out)

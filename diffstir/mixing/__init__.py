@@ -3,7 +3,8 @@ compares with the Lederer-Roegiers blending rule (``rheology.blending``; the pap
 """
 
 from .analysis import Mixing, analyse_mixing, write_mixing_report
+from .settings import MixingSettings
 from .track import Approach, fit_approach, time_windows, track_viscosity
 
-__all__ = ["Approach", "Mixing", "analyse_mixing", "fit_approach", "time_windows", "track_viscosity",
+__all__ = ["Approach", "Mixing", "MixingSettings", "analyse_mixing", "fit_approach", "time_windows", "track_viscosity",
            "write_mixing_report"]

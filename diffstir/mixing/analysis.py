@@ -1,8 +1,8 @@
 """Mixing analysis of one recording (the paper's Fig. 6): the viscosity's time course with its band, the time to
 homogeneity, and the blend viscosity against the Lederer-Roegiers range.
 
-    result = analyse_mixing(load_recording("rec/syrup_water"), config=SimConfig(dim=2), viscosities=(1.0, 0.1),
-                            fraction=0.5, window=0.5)
+    result = analyse_mixing(load_recording("rec/syrup_water"), config=COARSE_STAGE,
+                            settings=MixingSettings(viscosities=[1.0, 0.1], fraction=0.5))
 """
 
 from __future__ import annotations
@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from ..density import combined_density
-from ..fitting import MODEL_FORCE_ERROR, ViscosityPoint
+from ..fitting import ViscosityPoint
 from ..mpm import SimConfig
 from ..plots import pyplot, save_figure
 from ..recording import Recording
 from ..report_files import write_summary
 from ..rheology.blending import blend_range, implied_alpha
+from .settings import MixingSettings
 from .track import Approach, fit_approach, time_windows, track_viscosity
 
 
@@ -61,26 +62,24 @@ class Mixing:
             "density": self.density, "seconds": self.seconds}
 
 
-def analyse_mixing(recording: Recording, *, config: SimConfig, viscosities: tuple[float, float], fraction: float,
-                   window: float = 0.5, density: float | None = None, iterations: int = 3,
-                   model_error: float = MODEL_FORCE_ERROR, progress: bool = False) -> Mixing:
-    """Track the apparent viscosity of ``recording`` over ``window``-second windows, fit its approach to a plateau
-    and compare the plateau with the Lederer-Roegiers range of the components' ``viscosities`` (η1 > η2) [Pa·s]
-    at volume fraction ``fraction`` φ [1] of fluid 1. ``density`` [kg/m³]: used only without a density block.
-    ``model_error``: the relative force error σ_m of ``config`` (``behaviour.window_viscosity``); the plateau's
-    interval carries it as read in the last window, where the course ends. ``progress``: show a progress bar of
-    the simulations (``track_viscosity``)."""
+def analyse_mixing(recording: Recording, *, config: SimConfig, settings: MixingSettings, density: float | None = None,
+                   progress: bool = False) -> Mixing:
+    """Track the apparent viscosity of ``recording`` over ``settings.window``-second windows, fit its approach to a
+    plateau and compare the plateau with the Lederer-Roegiers range of the components' ``settings.viscosities``
+    (η1 > η2) [Pa·s] at volume fraction ``settings.fraction`` φ [1] of fluid 1. ``density`` [kg/m³]: used only
+    without a density block. ``settings.model_error``: the relative force error σ_m of ``config``
+    (``fitting.window_viscosity``); the plateau's interval carries it as read in the last window, where the course
+    ends. ``progress``: show a progress bar of the simulations (``track_viscosity``)."""
     started = time.perf_counter()
-    eta1, eta2 = (float(v) for v in viscosities)
-    blend_range(eta1, eta2, fraction)  # checks the components before the simulations
-    windows = time_windows(recording, window)  # and that the recording holds a time course
+    eta1, eta2 = settings.viscosities
+    windows = time_windows(recording, settings.window)  # the recording holds a time course, before any simulation
     rho = combined_density([recording], density)
-    points = track_viscosity(windows, config, rho["value"], iterations=iterations, model_error=model_error,
-                             progress=progress)
+    points = track_viscosity(windows, config, rho["value"], iterations=settings.iterations,
+                             model_error=settings.model_error, progress=progress)
     times = [0.5 * (p.window.start + p.window.end) for p in points]
     approach = fit_approach(times, [p.viscosity for p in points], [p.log_std for p in points],
                             systematic=points[-1].model_log_std)
-    return Mixing(rho, points, approach, (eta1, eta2), float(fraction), time.perf_counter() - started)
+    return Mixing(rho, points, approach, (eta1, eta2), float(settings.fraction), time.perf_counter() - started)
 
 
 def write_mixing_report(result: Mixing, out) -> dict:
