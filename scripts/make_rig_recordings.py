@@ -26,8 +26,10 @@ import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from diffstir.lab import (Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise,
-                          synthesise_blend, write_lab_recording)
+from diffstir.lab import (
+    Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, synthesise_blend,
+    write_lab_recording,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 RAMP = 0.1  # s: each programme's cosine ramp from rest

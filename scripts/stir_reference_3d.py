@@ -24,7 +24,8 @@ import numpy as np
 import scipy.sparse as sp
 from skfem import Basis, MeshTet
 
-from diffstir.lab.stokes3d import CupRig, Result, RigMesh, build_mesh, slab_force, slab_mesh, solve, stir_history
+from diffstir.lab.stokes3d import (CupRig, Result, RigMesh, build_mesh, slab_force, slab_mesh, solve,
+                                   stir_history)
 
 
 def couette_torque(viscosity: float, spin: float, a: float, b: float) -> float:

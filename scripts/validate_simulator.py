@@ -85,13 +85,13 @@ from problems import (couette_torque_newtonian, couette_torque_power_law, fittin
 
 import numpy as np  # noqa: E402
 
-from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.mpm.boundaries import RodPose
-from diffstir.mpm.packing import deposit
-from diffstir.mpm.step import node_fill
-from diffstir.rheology import Newtonian, PowerLaw
-from diffstir.rig import Rig
-from diffstir.trajectory import circle, spin, stationary, translate
+from diffstir.mpm import SimConfig, StirringSimulator  # noqa: E402
+from diffstir.mpm.boundaries import RodPose  # noqa: E402
+from diffstir.mpm.packing import deposit  # noqa: E402
+from diffstir.mpm.step import node_fill  # noqa: E402
+from diffstir.rheology import Newtonian, PowerLaw  # noqa: E402
+from diffstir.rig import Rig  # noqa: E402
+from diffstir.trajectory import circle, spin, stationary, translate  # noqa: E402
 
 RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius

@@ -48,11 +48,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from problems import translating_rod_force  # noqa: E402
 
 import diffstir.mpm.step as mpm_step  # noqa: E402
-from diffstir.mpm import SimConfig, StirringSimulator
-from diffstir.mpm.state import State
-from diffstir.rheology import Newtonian
-from diffstir.rig import Rig
-from diffstir.trajectory import circle, stationary, translate
+from diffstir.mpm import SimConfig, StirringSimulator  # noqa: E402
+from diffstir.mpm.state import State  # noqa: E402
+from diffstir.rheology import Newtonian  # noqa: E402
+from diffstir.rig import Rig  # noqa: E402
+from diffstir.trajectory import circle, stationary, translate  # noqa: E402
 
 RIG = Rig()
 A, B = RIG.rod.radius, RIG.cup.radius

@@ -11,7 +11,7 @@ import torch
 
 from diffstir.behaviour import BehaviourSettings, characterise, write_behaviour_report
 from diffstir.behaviour.joint import (INDEX_SHIFTS, PASTE_SHARES, JointProblem, index_starts, paste_start,
-                                      screened_starts)
+                                     screened_starts)
 from diffstir.fitting.models import FitModel
 from diffstir.fitting.problem import StirProblem
 from diffstir.fitting.windows import speed_windows

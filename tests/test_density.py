@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from diffstir.density import estimate_density, estimate_recording_density, resolution_std
-from diffstir.recording import CupGeometry, DensityMeasurement, Recording, RecordingError, RodGeometry, SensorSpec
+from diffstir.recording import (
+    CupGeometry, DensityMeasurement, Recording, RecordingError, RodGeometry, SensorSpec,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 R_ROD, H = 0.0125, 0.080  # m: the paper's rod (diameter 2.5 cm), immersed 8 cm

@@ -14,13 +14,14 @@ import pytest
 pytest.importorskip("skfem")
 pytest.importorskip("gmsh")
 
-from diffstir.errors import ConfigError
-from diffstir.lab import FiniteElementTruth, Fluid, HiddenPhysicsSpec, simulate_truth, stirring_programme, stokes3d
-from diffstir.lab.fe_truth import circle_motion
-from diffstir.mpm.hidden_physics import Thixotropy
-from diffstir.rheology import make_law
-from diffstir.rig import Cup, Rig, Rod
-from diffstir.trajectory import Trajectory
+from diffstir.errors import ConfigError  # noqa: E402
+from diffstir.lab import FiniteElementTruth, Fluid, HiddenPhysicsSpec, simulate_truth  # noqa: E402
+from diffstir.lab import stirring_programme, stokes3d  # noqa: E402
+from diffstir.lab.fe_truth import circle_motion  # noqa: E402
+from diffstir.mpm import Thixotropy  # noqa: E402
+from diffstir.rheology import make_law  # noqa: E402
+from diffstir.rig import Cup, Rig, Rod  # noqa: E402
+from diffstir.trajectory import Trajectory  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,7 +9,13 @@ import torch
 from scipy import stats
 
 from diffstir.rheology import Bingham, Carreau, Cross, HerschelBulkley, PowerLaw
-from diffstir.rheology.flow_curve import FlowCurve, bundled_flow_curves, fit_flow_curve, load_flow_curves, rank_laws
+from diffstir.rheology.flow_curve import (
+    FlowCurve,
+    bundled_flow_curves,
+    fit_flow_curve,
+    load_flow_curves,
+    rank_laws,
+)
 
 BUNDLED = bundled_flow_curves()
 NOISE = 0.02  # standard deviation of the multiplicative log-normal noise of synthetic data

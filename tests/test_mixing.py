@@ -12,7 +12,8 @@ import torch
 
 from diffstir.fitting.uncertainty import Z95
 from diffstir.lab import Fluid, SensorModel, stirring_programme
-from diffstir.lab.blend import Blend, BlendMaterial, cell_concentration, initial_concentration, mix, synthesise_blend
+from diffstir.lab.blend import (Blend, BlendMaterial, cell_concentration, initial_concentration, mix,
+                                synthesise_blend)
 from diffstir.mixing import fit_approach
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.recording import save_recording

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
-from diffstir.recording import (CupGeometry, DensityMeasurement, Recording, RecordingError, RecordingWarning,
-                                RodGeometry, SensorSpec, load_recording, save_recording)
+from diffstir.recording import (
+    CupGeometry, DensityMeasurement, Recording, RecordingError, RecordingWarning, RodGeometry, SensorSpec,
+    load_recording, save_recording,
+)
 
 CUP = CupGeometry(radius=0.0425, fill_height=0.130)
 ROD = RodGeometry(radius=0.0125, immersion_depth=0.080)

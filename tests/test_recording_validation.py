@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
-from diffstir.recording import (CupGeometry, DensityMeasurement, Recording, RecordingError, RecordingWarning,
-                                RodGeometry, SensorSpec, load_recording, save_recording, stirring_frequency,
-                                validate_recording)
+from diffstir.recording import (
+    CupGeometry, DensityMeasurement, Recording, RecordingError, RecordingWarning, RodGeometry, SensorSpec,
+    load_recording, save_recording, stirring_frequency, validate_recording,
+)
 
 
 def stir(*, rate=200.0, duration=3.0, freq=1.0, radius=0.015, sensor=SensorSpec("tangential"), **kwargs):

@@ -16,8 +16,10 @@ import numpy as np
 import pytest
 import yaml
 
-from diffstir.recording import (CupGeometry, DensityMeasurement, RecordingError, RecordingWarning, RecordingWriter,
-                                RodGeometry, SensorSpec, load_recording)
+from diffstir.recording import (
+    CupGeometry, DensityMeasurement, RecordingError, RecordingWarning, RecordingWriter, RodGeometry, SensorSpec,
+    load_recording,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = dict(cup=CupGeometry(0.0425, fill_height=0.130), rod=RodGeometry(0.0125, 0.080),

@@ -7,8 +7,18 @@ import pytest
 import torch
 from torch.func import functional_call
 
-from diffstir.rheology import (LAWS, Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw, RheologyLaw,
-                               Tabulated, make_law)
+from diffstir.rheology import (
+    LAWS,
+    Bingham,
+    Carreau,
+    Cross,
+    HerschelBulkley,
+    Newtonian,
+    PowerLaw,
+    RheologyLaw,
+    Tabulated,
+    make_law,
+)
 from diffstir.rheology.parameters import BoundedParameter, from_raw, to_raw
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
 import stir_reference_3d as ref  # noqa: E402
 
-from diffstir.lab import stokes3d
+from diffstir.lab import stokes3d  # noqa: E402
 
 PAPER = stokes3d.CupRig()
 A, B = PAPER.rod_radius, PAPER.cup_radius

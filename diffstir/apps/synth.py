@@ -16,8 +16,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import Run, command
 from diffstir.errors import OutputError
-from diffstir.lab import (Blend, FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme,
-                          synthesise, synthesise_blend, truth_path, write_lab_recording)
+from diffstir.lab import (
+    Blend, FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise,
+    synthesise_blend, truth_path, write_lab_recording,
+)
 from diffstir.mpm import SimConfig
 from diffstir.rig import Rig
 from diffstir.trajectory import Trajectory

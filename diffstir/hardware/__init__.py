@@ -6,11 +6,14 @@ Emulated devices for tests and dry rehearsals are in ``diffstir.hardware.emulato
 
 from diffstir.hardware.adc import ADC, Sample, SerialADC
 from diffstir.hardware.arm import Arm, CupFrame, Pose, ReplayArm, URArm, XArmArm, load_trajectory
-from diffstir.hardware.calibration import (Calibration, CalibrationPoint, Divider, fit_calibration, load_calibration,
-                                           measure_point)
+from diffstir.hardware.calibration import (
+    Calibration, CalibrationPoint, Divider, fit_calibration, load_calibration, measure_point,
+)
 from diffstir.hardware.clock import ClockAligner, ClockFit, align_clocks
-from diffstir.hardware.errors import (DeviceDisconnected, GripperError, GripperTimeout, HardwareError, HardwareWarning,
-                                      MissingExtraError, ModbusError, SensorStalled)
+from diffstir.hardware.errors import (
+    DeviceDisconnected, GripperError, GripperTimeout, HardwareError, HardwareWarning, MissingExtraError,
+    ModbusError, SensorStalled,
+)
 from diffstir.hardware.filters import Baseline, Smoothed, adaptive_gaussian, gaussian_smooth, robust_noise
 from diffstir.hardware.gripper import AG95_REGISTERS, AG95Gripper, Gripper, GripperStatus, GripState, InitState
 from diffstir.hardware.modbus import ModbusRTU, crc16

@@ -14,8 +14,10 @@ from diffstir.lab.fe_truth import FiniteElementTruth
 from diffstir.lab.fluid import Fluid, make_fluid_law
 from diffstir.lab.programme import Segment, programme_speed, stirring_programme
 from diffstir.lab.sensor import SensorModel, dead_band, first_order_lag, one_sided, quantise
-from diffstir.lab.synth import (HiddenPhysicsSpec, LabRecording, TruthSimulation, density_block, read_truth,
-                                simulate_truth, synthesise, truth_path, write_lab_recording)
+from diffstir.lab.synth import (
+    HiddenPhysicsSpec, LabRecording, TruthSimulation, density_block, read_truth, simulate_truth, synthesise,
+    truth_path, write_lab_recording,
+)
 
 __all__ = [
     "Blend",

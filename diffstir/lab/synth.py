@@ -29,8 +29,10 @@ from diffstir.lab.fluid import Fluid
 from diffstir.lab.sensor import SensorModel, quantise
 from diffstir.mpm import SimConfig, StirringSimulator
 from diffstir.mpm.hidden_physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
-from diffstir.recording import (CupGeometry, DensityMeasurement, Recording, RecordingError, RodGeometry, load_recording,
-                                save_recording, validate_recording)
+from diffstir.recording import (
+    CupGeometry, DensityMeasurement, Recording, RecordingError, RodGeometry, load_recording, save_recording,
+    validate_recording,
+)
 from diffstir.report_files import to_json, write_text_atomically
 from diffstir.rig import Rig
 from diffstir.slice_correction import trajectory_correction

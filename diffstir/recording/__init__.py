@@ -10,7 +10,9 @@ import importlib
 
 from diffstir.recording.errors import RecordingError, RecordingNotFound, RecordingWarning
 from diffstir.recording.files import load_recording, save_recording
-from diffstir.recording.format import FORMAT, CupGeometry, DensityMeasurement, Recording, RodGeometry, SensorSpec
+from diffstir.recording.format import (
+    FORMAT, CupGeometry, DensityMeasurement, Recording, RodGeometry, SensorSpec,
+)
 from diffstir.recording.plausibility import check_plausibility
 from diffstir.recording.stirring import stirring_frequency
 from diffstir.recording.validate import validate_recording

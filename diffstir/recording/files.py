@@ -20,8 +20,10 @@ import numpy as np
 import yaml
 
 from diffstir.recording.errors import RecordingError, RecordingNotFound, RecordingWarning
-from diffstir.recording.format import (COLUMN_UNITS, CSV_NAME, FORMAT, OPTIONAL_COLUMNS, REQUIRED_COLUMNS, YAML_NAME,
-                                       CupGeometry, DensityMeasurement, Recording, RodGeometry, SensorSpec)
+from diffstir.recording.format import (
+    COLUMN_UNITS, CSV_NAME, FORMAT, OPTIONAL_COLUMNS, REQUIRED_COLUMNS, YAML_NAME, CupGeometry,
+    DensityMeasurement, Recording, RodGeometry, SensorSpec,
+)
 from diffstir.recording.plausibility import check_plausibility
 from diffstir.recording.validate import check_columns_shape, validate_recording
 

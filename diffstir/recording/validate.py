@@ -11,8 +11,10 @@ import math
 import numpy as np
 
 from diffstir.recording.errors import RecordingError
-from diffstir.recording.format import (COLUMN_UNITS, OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SENSOR_MODES, CupGeometry,
-                                       DensityMeasurement, Recording, RodGeometry, SensorSpec)
+from diffstir.recording.format import (
+    COLUMN_UNITS, OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SENSOR_MODES, CupGeometry, DensityMeasurement, Recording,
+    RodGeometry, SensorSpec,
+)
 from diffstir.recording.stirring import MIN_STIR_AMPLITUDE, stirring_frequency
 
 MAX_LENGTH = 1.0  # m: a cup, rod or position beyond this looks like millimetres

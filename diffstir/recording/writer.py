@@ -17,9 +17,12 @@ import weakref
 from pathlib import Path
 
 from diffstir.recording.errors import RecordingError
-from diffstir.recording.files import csv_header, format_value, fresh_dir, fsync_dir, metadata_dict, warn, write_metadata
-from diffstir.recording.format import (COLUMN_UNITS, CSV_NAME, REQUIRED_COLUMNS, YAML_NAME, CupGeometry,
-                                       DensityMeasurement, RodGeometry, SensorSpec)
+from diffstir.recording.files import (
+    csv_header, format_value, fresh_dir, fsync_dir, metadata_dict, warn, write_metadata,
+)
+from diffstir.recording.format import (
+    COLUMN_UNITS, CSV_NAME, REQUIRED_COLUMNS, YAML_NAME, CupGeometry, DensityMeasurement, RodGeometry, SensorSpec,
+)
 from diffstir.recording.validate import check_metadata
 
 _COLUMN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")

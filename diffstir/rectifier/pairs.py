@@ -35,8 +35,10 @@ import torch
 from diffstir.density import density_estimate
 from diffstir.fitting import (PROBE_INDEX_STEP, StirProblem, ViscosityLadder, Windows, effective_shear_rate,
                               mean_stirring_speed)
-from diffstir.lab import (Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth,
-                          simulate_truth, stirring_programme)
+from diffstir.lab import (
+    Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth, simulate_truth,
+    stirring_programme,
+)
 from diffstir.mpm import SimConfig
 from diffstir.report_files import write_text_atomically
 from diffstir.rheology import LAWS, within_bounds

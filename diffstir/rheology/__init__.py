@@ -5,10 +5,29 @@ All quantities are SI: shear rate [1/s], shear stress [Pa], viscosity [Pa·s].
 """
 
 from diffstir.rheology.blending import blend_range, implied_alpha, lederer_roegiers
-from diffstir.rheology.flow_curve import (FlowCurve, FlowCurveFit, bundled_flow_curves, fit_flow_curve,
-                                          load_flow_curves, rank_laws)
-from diffstir.rheology.laws import (LAWS, Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw, RegularisedLaw,
-                                    RheologyLaw, Tabulated, has_yield_stress, make_law, within_bounds)
+from diffstir.rheology.flow_curve import (
+    FlowCurve,
+    FlowCurveFit,
+    bundled_flow_curves,
+    fit_flow_curve,
+    load_flow_curves,
+    rank_laws,
+)
+from diffstir.rheology.laws import (
+    LAWS,
+    Bingham,
+    Carreau,
+    Cross,
+    HerschelBulkley,
+    Newtonian,
+    PowerLaw,
+    RegularisedLaw,
+    RheologyLaw,
+    Tabulated,
+    has_yield_stress,
+    make_law,
+    within_bounds,
+)
 
 __all__ = [
     "LAWS",

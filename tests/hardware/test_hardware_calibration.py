@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
-from diffstir.hardware import (Calibration, CalibrationPoint, Divider, SerialADC, fit_calibration, load_calibration,
-                               measure_point)
+from diffstir.hardware import (
+    Calibration, CalibrationPoint, Divider, SerialADC, fit_calibration, load_calibration, measure_point,
+)
 from diffstir.hardware.emulators import nominal_calibration
 
 DIVIDER = Divider(supply_voltage=3.3, reference_resistance=10e3, volts_per_count=125e-6)

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from diffstir.hardware import (AG95_REGISTERS, AG95Gripper, GripperError, GripperTimeout, GripState, HardwareError,
-                               InitState, ModbusError)
+from diffstir.hardware import (
+    AG95_REGISTERS, AG95Gripper, GripperError, GripperTimeout, GripState, HardwareError, InitState, ModbusError,
+)
 from diffstir.hardware.modbus import crc16, crc_ok, with_crc
 
 pytestmark = pytest.mark.timeout(10)

@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
-from diffstir.hardware import (DeviceDisconnected, GripperError, HardwareWarning, Pose, ReplayArm, SensorStalled,
-                               SerialADC, Session, read_session)
+from diffstir.hardware import (
+    DeviceDisconnected, GripperError, HardwareWarning, Pose, ReplayArm, SensorStalled, SerialADC, Session,
+    read_session,
+)
 from diffstir.hardware.emulators import nominal_calibration
 from diffstir.hardware.gripper import AG95Gripper
 from diffstir.hardware.session import POSE_GAP_FACTOR
