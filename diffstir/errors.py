@@ -1,5 +1,6 @@
-"""The errors a user's input can cause. Each message is one line that names the file or setting, the field and the
-expected unit; the command-line apps print it without a traceback and exit with status 2."""
+"""The errors a user's input can cause, and the checks of a setting that raise them. Each message is one line that
+names the file or setting, the field and the expected unit or the valid choices; the command-line apps print it
+without a traceback and exit with status 2."""
 
 from __future__ import annotations
 
@@ -14,3 +15,24 @@ class ConfigError(DiffstirError, ValueError):
 
 class OutputError(DiffstirError):
     """An output that would overwrite something recorded or shipped, or belongs to another input."""
+
+
+def check_choice(setting: str, value, choices) -> None:
+    """Raise ConfigError unless ``value`` is one of ``choices``; ``setting`` is its name on the command line."""
+    if value not in choices:
+        raise ConfigError(f"{setting} = {value!r}; choose from {', '.join(map(str, choices))}")
+
+
+def check_choices(setting: str, values, choices) -> None:
+    """Raise ConfigError unless every one of ``values`` is one of ``choices``."""
+    unknown = [v for v in values if v not in choices]
+    if unknown:
+        raise ConfigError(f"{setting}: unknown {', '.join(map(str, unknown))}; choose from "
+                          f"{', '.join(map(str, choices))}")
+
+
+def check_at_least(setting: str, value, low: float, unit: str = "") -> None:
+    """Raise ConfigError unless ``value`` (null allowed) is a number of at least ``low`` [``unit``]."""
+    if value is not None and not (isinstance(value, (int, float)) and value >= low):
+        raise ConfigError(f"{setting} = {value!r}{' ' + unit if unit else ''}; expected at least {low}"
+                          f"{' ' + unit if unit else ''}")

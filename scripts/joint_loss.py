@@ -1,6 +1,6 @@
 """The loss a law reaches on every speed at once, at parameters you choose, on a fluid of the behaviour benchmark
-(docs/accuracy-behaviour.md, Behaviour classification): how well a law *could* fit the joint problem, apart from how far the
-joint fit got.
+(docs/accuracy-behaviour.md, Behaviour classification): how well a law *could* fit the joint problem, apart from how
+far the joint fit got.
 
 The fluid is stirred by the lab along the benchmark's programme as ``behaviour_benchmark.py`` stirs it (same truth
 grid, sensor preset, noise seed and speeds, with the same options); every constant-speed window goes into one

@@ -70,7 +70,8 @@ def test_experiment_settings_missing_values_and_other_apps_are_refused_in_one_li
                    "diffstir-fit", "recordings = [")
     assert_refused(run("diffstir-fit", "experiment=mixing", f"recordings=[{EXAMPLE}]", "mixing.viscosities=[0.1,1.0]",
                        "mixing.fraction=0.5", cwd=tmp_path), "diffstir-fit",
-                   "mixing.viscosities = [0.1, 1.0]; expected [eta1, eta2] in Pa·s, both positive, the more viscous first")
+                   "mixing.viscosities = [0.1, 1.0]; expected [eta1, eta2] in Pa·s, both positive, the more viscous "
+                   "first")
     assert_refused(run("diffstir-fit", "experiment=behaviour", f"recordings=[{EXAMPLE}]", "behaviour.slope_test=t",
                        cwd=tmp_path), "diffstir-fit", "behaviour.slope_test = 't'; choose from combined")
     assert_refused(run("diffstir-fit", "experiment=behaviour", f"recordings=[{EXAMPLE}]",

@@ -27,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
 from diffstir.behaviour import BehaviourSettings
-from diffstir.errors import ConfigError, DiffstirError
+from diffstir.errors import DiffstirError, check_at_least
 from diffstir.fitting import FitSettings
 from diffstir.mixing import MixingSettings
 from diffstir.parallel import default_workers
@@ -48,27 +48,6 @@ for _name, _schema in SCHEMAS.items():
 def config_workers(cfg: DictConfig) -> int:
     """The config's ``workers``: processes for fits side by side (null: one per CPU, one on a GPU)."""
     return default_workers(cfg.sim.device) if cfg.workers is None else int(cfg.workers)
-
-
-def check_choice(setting: str, value, choices) -> None:
-    """Raise ConfigError unless ``value`` is one of ``choices``; ``setting`` is its name on the command line."""
-    if value not in choices:
-        raise ConfigError(f"{setting} = {value!r}; choose from {', '.join(map(str, choices))}")
-
-
-def check_choices(setting: str, values, choices) -> None:
-    """Raise ConfigError unless every one of ``values`` is one of ``choices``."""
-    unknown = [v for v in values if v not in choices]
-    if unknown:
-        raise ConfigError(f"{setting}: unknown {', '.join(map(str, unknown))}; choose from "
-                          f"{', '.join(map(str, choices))}")
-
-
-def check_at_least(setting: str, value, low: float, unit: str = "") -> None:
-    """Raise ConfigError unless ``value`` (null allowed) is a number of at least ``low`` [``unit``]."""
-    if value is not None and not (isinstance(value, (int, float)) and value >= low):
-        raise ConfigError(f"{setting} = {value!r}{' ' + unit if unit else ''}; expected at least {low}"
-                          f"{' ' + unit if unit else ''}")
 
 
 def check_processes(cfg: DictConfig) -> None:

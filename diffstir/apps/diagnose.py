@@ -13,9 +13,9 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig
 
-from diffstir.apps import Run, check_at_least, check_choices, check_processes, command, config_workers
+from diffstir.apps import Run, check_processes, command, config_workers
 from diffstir.diagnosis import CANDIDATES, diagnose, write_diagnosis
-from diffstir.errors import ConfigError, OutputError
+from diffstir.errors import ConfigError, OutputError, check_at_least, check_choices
 from diffstir.fitting import FitSettings
 from diffstir.identification import identify
 from diffstir.recording import load_recording

@@ -14,9 +14,9 @@ import torch
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import CONF_DIR, Run, check_at_least, check_choices, check_processes, command, config_workers
+from diffstir.apps import CONF_DIR, Run, check_processes, command, config_workers
 from diffstir.behaviour import characterise, write_behaviour_report
-from diffstir.errors import ConfigError, OutputError
+from diffstir.errors import ConfigError, OutputError, check_at_least, check_choices
 from diffstir.fitting import FitSettings
 from diffstir.identification import identify
 from diffstir.identification.report import write_report

@@ -21,7 +21,7 @@ from functools import partial
 import numpy as np
 
 from ..density import combined_density
-from ..errors import ConfigError
+from ..errors import check_choice
 from ..fitting import (MODEL_FORCE_ERROR, Z95, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
                        window_event, window_simulations)
 from ..mpm import SimConfig
@@ -142,7 +142,7 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
     (their yield stresses' shares of the slowest stress, material above ``YIELD_SHARE_SIGMAS`` × ``model_error``).
     With the report's own test, ``replicates``, ``seed`` and ``model_error`` it gives the report's class and
     confidence (to the rounding of the parameters)."""
-    _check_slope_test(slope_test)
+    check_choice("behaviour.slope_test", slope_test, SLOPE_TESTS)
     used = [p for p in summary["points"] if p["classified"]]
     points = classify([p["shear_rate"] for p in used], [p["viscosity"] for p in used],
                       [math.hypot(p["log_std"], p["model_log_std"]) for p in used], replicates=replicates, seed=seed)
@@ -157,11 +157,6 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
     if slope_test == "joint_index" and index is None:
         raise ValueError("behaviour.slope_test = 'joint_index' reads the joint power law's index; the report has none")
     return decide(points, index, test, slope_test)
-
-
-def _check_slope_test(slope_test: str) -> None:
-    if slope_test not in SLOPE_TESTS:
-        raise ConfigError(f"behaviour.slope_test = {slope_test!r}; choose from {', '.join(SLOPE_TESTS)}")
 
 
 def reported_joint_index(summary: dict) -> SlopeEstimate | None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError
+from ..errors import ConfigError, check_choice, check_choices
 from ..fitting import INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, PAUSE_SPEED, checked_model_error
 from ..rheology import LAWS
 
@@ -67,12 +67,8 @@ class BehaviourSettings:
             if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
                     and value > 0):
                 raise ConfigError(f"behaviour.{name} = {value!r} {unit}; expected a positive number in {unit}")
-        unknown = [m for m in self.joint_models if m not in LAWS]
-        if unknown:
-            raise ConfigError(f"behaviour.joint_models: unknown {', '.join(map(str, unknown))}; choose from "
-                              f"{', '.join(sorted(LAWS))}")
-        if self.slope_test not in SLOPE_TESTS:
-            raise ConfigError(f"behaviour.slope_test = {self.slope_test!r}; choose from {', '.join(SLOPE_TESTS)}")
+        check_choices("behaviour.joint_models", self.joint_models, sorted(LAWS))
+        check_choice("behaviour.slope_test", self.slope_test, SLOPE_TESTS)
         if self.slope_test == "joint_index" and "power_law" not in self.joint_models:
             raise ConfigError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law "
                               f"to behaviour.joint_models (got {self.joint_models})")

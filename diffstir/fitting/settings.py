@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError
+from ..errors import ConfigError, check_choice, check_choices
 from .nuisance import NUISANCES
 from .optimise import OPTIMIZERS
 from .selection import CRITERIA
@@ -62,12 +62,9 @@ class FitSettings:
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
                 raise ConfigError(f"fit.{name} = {value!r}; expected a whole number of at least {low}")
-        _choice("fit.optimizer", self.optimizer, OPTIMIZERS)
-        _choice("fit.selection", self.selection, CRITERIA)
-        unknown = [n for n in self.sensor_nuisance if n not in NUISANCES]
-        if unknown:
-            raise ConfigError(f"fit.sensor_nuisance: unknown {', '.join(map(str, unknown))}; choose from "
-                              f"{', '.join(NUISANCES)}")
+        check_choice("fit.optimizer", self.optimizer, OPTIMIZERS)
+        check_choice("fit.selection", self.selection, CRITERIA)
+        check_choices("fit.sensor_nuisance", self.sensor_nuisance, NUISANCES)
         checked_model_error(self.model_error, "fit.model_error")
         checked_model_error(self.inertial_error, "fit.inertial_error")
         if not isinstance(self.slice_correction, bool):
@@ -83,7 +80,3 @@ class FitSettings:
 def _number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
-
-def _choice(setting: str, value, choices) -> None:
-    if value not in choices:
-        raise ConfigError(f"{setting} = {value!r}; choose from {', '.join(map(str, choices))}")

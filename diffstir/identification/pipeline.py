@@ -80,12 +80,14 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
     sensor = SensorNuisance(tuple(settings.sensor_nuisance))
     fingerprint = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
-                "models": names, "window": settings.window, "holdout_fraction": settings.holdout_fraction, "optimizer": settings.optimizer,
-                "max_iterations": settings.max_iterations, **config.force_settings(), "density": density_report["value"],
-                "slice_correction": (slice_correction_table()["coefficients"] if config.dim == 2 and settings.slice_correction
-                                     else None),
-                "shear_rate_probes": PROBE_INDEX_STEP,
-                "coarse": None if coarse is None else {**coarse.force_settings(), "fine_iterations": settings.fine_iterations}}
+                   "models": names, "window": settings.window, "holdout_fraction": settings.holdout_fraction,
+                   "optimizer": settings.optimizer, "max_iterations": settings.max_iterations,
+                   **config.force_settings(), "density": density_report["value"],
+                   "slice_correction": (slice_correction_table()["coefficients"]
+                                        if config.dim == 2 and settings.slice_correction else None),
+                   "shear_rate_probes": PROBE_INDEX_STEP,
+                   "coarse": (None if coarse is None
+                              else {**coarse.force_settings(), "fine_iterations": settings.fine_iterations})}
     state = _load_checkpoint(checkpoint, fingerprint, recording_label(recording), overwrite)
 
     def save() -> None:
@@ -143,8 +145,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         start_estimates(stages[0], pool)
         tracker.finished("start")
         plan = Plan(stages, names, ladder_estimate=state["ladder"]["estimate"],
-                    shear_rate=state["effective_shear_rate"], optimizer=settings.optimizer, sensor=sensor, stage_dt=stage_dt,
-                    done=state["done"], running=state["running"])
+                    shear_rate=state["effective_shear_rate"], optimizer=settings.optimizer, sensor=sensor,
+                    stage_dt=stage_dt, done=state["done"], running=state["running"])
         magnitude_pending = False
 
         def submit_ready() -> None:
@@ -195,8 +197,8 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
     tracker.close(f"selected {chosen['selected']}")
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
-                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]), model_error=settings.model_error,
-                          inertial_error=settings.inertial_error,
+                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]),
+                          model_error=settings.model_error, inertial_error=settings.inertial_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
                           magnitude=state.get("magnitude"))
 
