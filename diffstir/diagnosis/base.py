@@ -82,7 +82,7 @@ def base_from_identification(identification: Identification, problem: StirProble
     """The selected law of ``identification``; its simulated readings are reused when it compared the same samples
     at the same resolution as ``problem``."""
     fit = identification.selected
-    if fit.model.name == "corotated":
+    if not isinstance(fit.model.material, RheologyLaw):
         raise ValueError("diagnose: the selected model is the corotated baseline; diagnose a rheology law")
     law, density = fit.model.material, identification.density["value"]
     same = (identification.problem.config == problem.config

@@ -30,7 +30,6 @@ Physics candidates change the simulated fluid or rig and are simulated (``diffst
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass, replace
 from typing import Callable
 
@@ -38,7 +37,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..fitting import FitModel, StirProblem, initial_model, lag_response
+from ..fitting import FitModel, StirProblem, ThetaParameters, initial_model, lag_response, theta_of
 from ..lab.sensor import dead_band
 from ..mpm.hidden_physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
 from ..recording import SensorSpec
@@ -73,11 +72,8 @@ class Param:
     hi: float
 
     def theta(self, value: float) -> float:
-        value = min(max(value, self.lo), self.hi)
-        return math.log(value) if self.scale == "log" else float(value)
-
-    def value(self, theta: float) -> float:
-        return math.exp(theta) if self.scale == "log" else float(theta)
+        """θ of the SI ``value``, clipped into the bounds first."""
+        return theta_of(min(max(value, self.lo), self.hi), self.scale)
 
 
 #: The base law's viscosity scale s [1], shared by every candidate.
@@ -260,37 +256,26 @@ def check_names(names) -> list[str]:
     return names + ([] if "none" in names else ["none"])
 
 
-class Parametrisation:
-    """A candidate's parameters as θ (ln value for log-scaled, the value for linear ones), with the attributes
-    ``diffstir.fitting.uncertainty.laplace`` reads (names, units, scales, lower, upper, si_of_theta)."""
+class Parametrisation(ThetaParameters):
+    """A candidate's parameters as θ (``fitting.ThetaParameters``: ln value for log-scaled, the value for linear
+    ones), a ``fitting.ParameterSet`` for ``fitting.laplace``."""
 
     def __init__(self, params: tuple[Param, ...]):
+        super().__init__([p.name for p in params], {p.name: p.unit for p in params}, [p.scale for p in params],
+                         [(p.lo, p.hi) for p in params])
         self.params = params
-        self.names = [p.name for p in params]
-        self.units = {p.name: p.unit for p in params}
-        self.scales = [p.scale for p in params]
-        self.lower = np.array([p.theta(p.lo) for p in params])
-        self.upper = np.array([p.theta(p.hi) for p in params])
-
-    @property
-    def size(self) -> int:
-        return len(self.params)
 
     def theta_of(self, values: dict) -> np.ndarray:
+        """θ of SI ``values`` (by name), each clipped into its bounds."""
         return np.array([p.theta(values[p.name]) for p in self.params])
-
-    def values_of(self, theta: np.ndarray) -> dict:
-        theta = np.clip(np.asarray(theta, dtype=np.float64), self.lower, self.upper)
-        return {p.name: p.value(t) for p, t in zip(self.params, theta)}
-
-    def si_of_theta(self, theta: np.ndarray) -> np.ndarray:
-        theta = np.asarray(theta, dtype=np.float64)
-        return np.where(np.array(self.scales) == "log", np.exp(theta), theta)
 
 
 class PhysicsModel(Parametrisation):
-    """A physics candidate on top of the base law, seen by ``diffstir.fitting.fit_model`` as a model with θ:
-    ``set_theta`` rebuilds ``material`` (and ``slip_length`` [m]) from θ."""
+    """A physics candidate on top of the base law, seen by ``diffstir.fitting.fit_model`` as a model with θ (a
+    ``fitting.MaterialParameters``): ``set_theta`` rebuilds ``material`` (and ``slip_length`` [m]) from θ."""
+
+    is_baseline = False  # its viscosity does not depend on the simulation's step
+    dt = None
 
     def __init__(self, candidate: PhysicsCandidate, law: RheologyLaw, ctx: Context):
         super().__init__(candidate.params)

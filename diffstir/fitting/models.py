@@ -1,9 +1,7 @@
-"""Fluid models as vectors of fitted parameters.
+"""Fluid models as vectors of fitted parameters θ (``parameters``): a rheology law's, or the corotated baseline's.
 
-A model's parameters are fitted as θ: the natural log of the value for log-scaled parameters (viscosities, times,
-stresses, moduli) and the value itself for dimensionless indices, each inside the law's bounds. Steps in θ are
-relative changes of scale parameters, which keeps Gauss-Newton well conditioned across decades of viscosity, and
-confidence intervals in θ map to intervals that stay positive.
+Each kind of material has its adapter, which reads and writes the material's SI values and gives its viscosity:
+``LawParameters`` for a rheology law, ``CorotatedParameters`` for the baseline. ``FitModel`` chooses it once.
 """
 
 from __future__ import annotations
@@ -13,10 +11,11 @@ import math
 
 import numpy as np
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from ..mpm import Corotated
 from ..rheology import LAWS, RheologyLaw, make_law
+from .parameters import ThetaParameters, theta_of
 
 #: Bounds of the corotated baseline's shear modulus μ [Pa]; its apparent viscosity is μ Δt.
 COROTATED_BOUNDS = (1e-3, 1e9)
@@ -26,41 +25,117 @@ COROTATED_BOUNDS = (1e-3, 1e9)
 STRESS_UNITS = ("Pa", "Pa·s", "Pa·s^n")
 
 
-class FitModel:
-    """A fluid model (a rheology law, or the corotated baseline) seen as θ.
+class LawParameters:
+    """A rheology law's fitted parameters: its names, units, scales and bounds, its SI values read and written
+    through the law's bounded parameters, and its viscosity."""
+
+    is_baseline = False
+
+    def __init__(self, law: RheologyLaw):
+        self.law = law
+        self.name = law.name
+        self.names = list(law.params)
+        self.units = {k: p.unit for k, p in law.params.items()}
+        self.scales = [p.scale for p in law.params.values()]
+        self.bounds = [(p.lo, p.hi) for p in law.params.values()]
+
+    def values(self) -> dict[str, float]:
+        """The law's SI values, by name."""
+        return self.law.parameters_si()
+
+    def set_values(self, values: dict[str, float]) -> None:
+        """Set the law's SI ``values`` (by name), clipped into its bounds."""
+        lo_hi = self.law.bounds()
+        self.law.set_parameters_si(**{k: min(max(v, lo_hi[k][0]), lo_hi[k][1]) for k, v in values.items()})
+
+    def viscosity(self, shear_rate: Tensor, values: dict[str, Tensor]) -> Tensor:
+        """η [Pa·s] at ``shear_rate`` [1/s] for SI parameter tensors ``values``, differentiable in them."""
+        return self.law.viscosity(shear_rate, values)
+
+    def zero_shear_viscosity(self) -> float:
+        """η at zero shear rate [Pa·s] (the regularised value for a yield-stress law)."""
+        return float(self.law.zero_shear_viscosity().detach())
+
+    def theta_gradient(self, grads: list[Tensor]) -> np.ndarray:
+        """d loss / d θ from ``grads``, d loss / d raw of the law's bounded raw parameters, in order:
+        θ = ln lo + span·sigmoid(raw) (log-scaled) or lo + span·sigmoid(raw) (linear)."""
+        out = []
+        for bounded, grad in zip(self.law.params.values(), grads):
+            frac = float(torch.sigmoid(bounded.raw.detach()))
+            span = (math.log(bounded.hi) - math.log(bounded.lo)) if bounded.scale == "log" else bounded.hi - bounded.lo
+            out.append(float(grad) / max(span * frac * (1.0 - frac), 1e-300))
+        return np.array(out)
+
+
+class CorotatedParameters:
+    """The corotated baseline's fitted parameter, its shear modulus μ [Pa] (stored as ln μ), whose viscosity is
+    μ Δt at every shear rate, Δt = ``dt`` [s] the simulation's step."""
+
+    is_baseline = True
+    name = "corotated"
+    names = ["shear_modulus"]
+    units = {"shear_modulus": "Pa"}
+    scales = ["log"]
+    bounds = [COROTATED_BOUNDS]
+
+    def __init__(self, material: Corotated, dt: float | None):
+        if dt is None:
+            raise ValueError("the corotated baseline needs the simulation's time step dt [s] to state its "
+                             "apparent viscosity mu * dt")
+        self.material, self.dt = material, dt
+
+    def values(self) -> dict[str, float]:
+        """{"shear_modulus": μ [Pa]}."""
+        return {"shear_modulus": float(self.material.shear_modulus.detach())}
+
+    def set_values(self, values: dict[str, float]) -> None:
+        """Set μ from ``values["shear_modulus"]`` [Pa]."""
+        with torch.no_grad():
+            self.material.log_shear_modulus.fill_(math.log(values["shear_modulus"]))
+
+    def viscosity(self, shear_rate: Tensor, values: dict[str, Tensor]) -> Tensor:
+        """μ Δt [Pa·s] at every ``shear_rate`` [1/s], for the SI tensor ``values["shear_modulus"]``."""
+        return values["shear_modulus"] * self.dt * torch.ones_like(shear_rate)
+
+    def zero_shear_viscosity(self) -> float:
+        """μ Δt [Pa·s]."""
+        return self.material.apparent_viscosity(self.dt)
+
+    def theta_gradient(self, grads: list[Tensor]) -> np.ndarray:
+        """d loss / d θ from ``grads``, [d loss / d ln μ]: θ is ln μ itself."""
+        return np.array([float(grads[0])])
+
+
+class FitModel(ThetaParameters):
+    """A fluid model (a rheology law, or the corotated baseline) seen as θ; a ``parameters.MaterialParameters``.
 
     Attributes:
         name: ``"newtonian"``, ``"carreau"``, ... or ``"corotated"``.
         material: the module handed to the simulator (the law itself, or ``Corotated``).
         names, units, scales: the fitted parameters in order, their SI units and scales.
         lower, upper: bounds of θ.
+        dt: the corotated baseline's simulation step [s] (None for a law).
     """
 
     def __init__(self, material: nn.Module, dt: float | None = None):
-        self.material = material
         if isinstance(material, RheologyLaw):
-            self.name = material.name
-            self.names = list(material.params)
-            self.units = {k: p.unit for k, p in material.params.items()}
-            self.scales = [p.scale for p in material.params.values()]
-            bounds = [(p.lo, p.hi) for p in material.params.values()]
+            kind = LawParameters(material)
         elif isinstance(material, Corotated):
-            if dt is None:
-                raise ValueError("the corotated baseline needs the simulation's time step dt [s] to state its "
-                                 "apparent viscosity mu * dt")
-            self.name, self.names, self.scales = "corotated", ["shear_modulus"], ["log"]
-            self.units = {"shear_modulus": "Pa"}
-            bounds = [COROTATED_BOUNDS]
+            kind = CorotatedParameters(material, dt)
         else:
             raise TypeError(f"cannot fit {type(material).__name__}; expected a rheology law or Corotated")
-        self.dt = dt
-        self.lower = np.array([_theta(lo, s) for (lo, _), s in zip(bounds, self.scales)])
-        self.upper = np.array([_theta(hi, s) for (_, hi), s in zip(bounds, self.scales)])
+        super().__init__(kind.names, kind.units, kind.scales, kind.bounds)
+        self.material, self.dt, self.kind, self.name = material, dt, kind, kind.name
+
+    @property
+    def is_baseline(self) -> bool:
+        """Whether this is the corotated baseline, whose viscosity μ Δt depends on the simulation's step."""
+        return self.kind.is_baseline
 
     @classmethod
     def named(cls, name: str, dt: float | None = None, **params: float) -> "FitModel":
         """A model by name (a law in ``diffstir.rheology.LAWS`` or ``"corotated"``) with initial SI values."""
-        if name == "corotated":
+        if name == CorotatedParameters.name:
             return cls(Corotated(params.get("shear_modulus", 1e3)), dt=dt)
         if name not in LAWS:
             raise ValueError(f"model {name!r} is unknown; choose from {sorted(LAWS) + ['corotated']}")
@@ -69,30 +144,21 @@ class FitModel:
     def copy(self) -> "FitModel":
         return FitModel(copy.deepcopy(self.material), self.dt)
 
-    @property
-    def size(self) -> int:
-        return len(self.names)
-
     def params_si(self) -> dict[str, float]:
         """Current values in SI units, by name."""
-        if self.name == "corotated":
-            return {"shear_modulus": float(self.material.shear_modulus.detach())}
-        return self.material.parameters_si()
+        return self.kind.values()
 
     def theta(self) -> np.ndarray:
         values = self.params_si()
-        return np.array([_theta(values[k], s) for k, s in zip(self.names, self.scales)])
+        return np.array([theta_of(values[k], s) for k, s in zip(self.names, self.scales)])
 
     def set_theta(self, theta: np.ndarray) -> None:
         """Set the parameters from θ (clipped into the bounds)."""
-        theta = np.clip(np.asarray(theta, dtype=np.float64), self.lower, self.upper)
-        values = {k: _value(t, s) for k, t, s in zip(self.names, theta, self.scales)}
-        if self.name == "corotated":
-            with torch.no_grad():
-                self.material.log_shear_modulus.fill_(math.log(values["shear_modulus"]))
-        else:
-            lo_hi = self.material.bounds()
-            self.material.set_parameters_si(**{k: min(max(v, lo_hi[k][0]), lo_hi[k][1]) for k, v in values.items()})
+        self.kind.set_values(self.values_of(theta))
+
+    def theta_gradient(self, grads: list[Tensor]) -> np.ndarray:
+        """d loss / d θ, (k,), from ``grads``, d loss / d each of ``material.parameters()``."""
+        return self.kind.theta_gradient(grads)
 
     def stress_scaled(self, factor: float) -> "FitModel":
         """A copy whose stress at every shear rate is ``factor`` times this one's: each parameter in a unit of
@@ -111,11 +177,6 @@ class FitModel:
         fluid's stress."""
         return np.array([1.0 if self.units[name] in STRESS_UNITS else 0.0 for name in self.names])
 
-    def si_of_theta(self, theta: np.ndarray) -> np.ndarray:
-        """SI values of θ (element-wise, no clipping: interval ends may lie outside the bounds)."""
-        theta = np.asarray(theta, dtype=np.float64)
-        return np.where(np.array(self.scales) == "log", np.exp(theta), theta)
-
     def viscosity(self, shear_rate: np.ndarray, theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Apparent viscosity [Pa·s] at ``shear_rate`` [1/s] and its gradient d ln η / dθ, (S,) and (S, k),
         at θ (default: the current parameters). The corotated baseline's viscosity is μ Δt at every rate."""
@@ -123,24 +184,11 @@ class FitModel:
         t = torch.tensor(theta, dtype=torch.float64, requires_grad=True)
         rate = torch.as_tensor(np.asarray(shear_rate, dtype=np.float64))
         values = {k: (t[i].exp() if s == "log" else t[i]) for i, (k, s) in enumerate(zip(self.names, self.scales))}
-        if self.name == "corotated":
-            eta = values["shear_modulus"] * self.dt * torch.ones_like(rate)
-        else:
-            eta = self.material.viscosity(rate, values)
+        eta = self.kind.viscosity(rate, values)
         log_eta = eta.log()
         grads = [torch.autograd.grad(v, t, retain_graph=True)[0] for v in log_eta.reshape(-1)]
         return eta.detach().numpy(), torch.stack(grads).numpy().reshape(*rate.shape, len(theta))
 
     def zero_shear_viscosity(self) -> float:
         """η at zero shear rate [Pa·s] (the law's regularised value for yield-stress laws; μ Δt for corotated)."""
-        if self.name == "corotated":
-            return float(self.material.shear_modulus.detach()) * self.dt
-        return float(self.material.zero_shear_viscosity().detach())
-
-
-def _theta(value: float, scale: str) -> float:
-    return math.log(value) if scale == "log" else float(value)
-
-
-def _value(theta: float, scale: str) -> float:
-    return math.exp(theta) if scale == "log" else float(theta)
+        return self.kind.zero_shear_viscosity()

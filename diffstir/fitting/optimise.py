@@ -27,6 +27,7 @@ from scipy import optimize
 
 from .models import FitModel
 from .nuisance import NO_NUISANCE, SensorNuisance, lag_response
+from .parameters import MaterialParameters
 from .problem import FitProblem
 
 #: The optimisers of ``fit_model``: trust-region Gauss-Newton on the soft-L1 cost, and the paper's Adam.
@@ -42,12 +43,11 @@ TRUST_RADIUS = {"log": 1.0, "linear": 0.25}
 #: Finite-difference steps in θ: 5 % relative change of a log-scaled parameter, 0.02 of a dimensionless index.
 FD_STEP = {"log": 0.05, "linear": 0.02}
 
-#: A Broyden update needs a step of at least this fraction of ``FD_STEP`` in some parameter. The simulated reading
-#: moves by a few 1e-4 of itself between nearby viscosities for no physical reason (not float32 round-off: the two
-#: precisions agree to 1e-5), so a secant over a shorter step is mostly that noise: on a 3 Pa·s lab fluid
-#: d ln p / d ln η over steps of 6.4e-4, 2e-3 and 0.01 in ln η is 0.29, 0.64 and 0.845 against 0.875 by central
-#: differences (``scripts/secant_noise.py``, docs/accuracy.md); a fit whose last secant came from a step of 6.4e-4
-#: gave an interval 2x too narrow.
+#: A Broyden update needs a step of at least this fraction of ``FD_STEP`` in some parameter: a secant's error is
+#: the readings' noise between nearby viscosities over the step, which a simulation whose number of steps jumps
+#: with η makes large for short steps. On the fine stage (a fixed step, the viscous stress in substeps) the 3 Pa·s
+#: lab fluid's d ln p / d ln η over steps of 6.4e-4 to 0.05 in ln η is within 2 % of central differences
+#: (``scripts/secant_noise.py``, docs/accuracy-2d.md).
 SECANT_FRACTION = 0.2
 
 
@@ -100,7 +100,7 @@ class Readings:
     as a step (it shrinks its region); the starting θ must simulate (``fit_model`` raises otherwise).
     """
 
-    def __init__(self, problem: FitProblem, model: FitModel,
+    def __init__(self, problem: FitProblem, model: MaterialParameters,
                  on_evaluation: Callable[[str, int, float], None] | None = None):
         self.problem, self.model, self.on_evaluation = problem, model, on_evaluation
         self.cache: dict[bytes, np.ndarray] = {}
@@ -202,11 +202,11 @@ def noise_scale(measured: np.ndarray, resolution: float | None) -> float:
     return max(mad, floor, 1e-12)
 
 
-def fit_model(problem: FitProblem, model: FitModel, *, max_iterations: int = 6, optimizer: str = "lm",
+def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations: int = 6, optimizer: str = "lm",
               learning_rate: float = 0.05, initial_jacobian: np.ndarray | None = None,
               initial_readings: np.ndarray | None = None,
               on_evaluation: Callable[[str, int, float], None] | None = None,
-              on_iteration: Callable[[FitModel, int, float, np.ndarray], None] | None = None,
+              on_iteration: Callable[[MaterialParameters, int, float, np.ndarray], None] | None = None,
               sensor: SensorNuisance = NO_NUISANCE) -> FitResult:
     """Fit ``model`` (starting from its current θ) to ``problem``'s fitted samples.
 
@@ -230,7 +230,7 @@ def fit_model(problem: FitProblem, model: FitModel, *, max_iterations: int = 6, 
     cfg = problem.config
     if model.name == "newtonian":  # above the simulator's viscosity cap [Pa·s] the reading stops responding to η
         model.upper[0] = min(model.upper[0], math.log(cfg.viscosity_cap))
-    elif model.name == "corotated":  # its apparent viscosity μ Δt must keep the fixed step stable: the viscous
+    elif model.is_baseline:  # its apparent viscosity μ Δt must keep the fixed step stable: the viscous
         # number 2 d μ Δt² / (ρ Δx²) within what the acoustic number c Δt / Δx leaves of 1
         room = max(1.0 - cfg.fixed_sound_speed * model.dt / cfg.dx, 0.0)
         mu_max = cfg.viscous_safety * room * problem.density * cfg.dx ** 2 / (2 * cfg.dim * model.dt ** 2)
@@ -323,7 +323,7 @@ def _adam(problem: FitProblem, model: FitModel, readings: Readings, theta0: np.n
         params = list(model.material.parameters())
         grads = torch.autograd.grad(loss, params)
         readings.evaluations += 1
-        theta_grad = _raw_to_theta_gradient(model, params, grads)
+        theta_grad = model.theta_gradient(grads)
         opt.zero_grad()
         theta.grad = torch.as_tensor(theta_grad)
         value = float(loss.detach())
@@ -335,15 +335,3 @@ def _adam(problem: FitProblem, model: FitModel, readings: Readings, theta0: np.n
             theta.copy_(torch.clamp(theta, torch.as_tensor(model.lower), torch.as_tensor(model.upper)))
     return best, f"{iterations} Adam steps"
 
-
-def _raw_to_theta_gradient(model: FitModel, params, grads) -> np.ndarray:
-    """d loss / d θ from d loss / d raw, for the laws' bounded raw parameters or the corotated log modulus."""
-    if model.name == "corotated":
-        return np.array([float(grads[0])])
-    out = []
-    for (key, bounded), grad in zip(model.material.params.items(), grads):
-        frac = float(torch.sigmoid(bounded.raw.detach()))
-        span = (math.log(bounded.hi) - math.log(bounded.lo)) if bounded.scale == "log" else (bounded.hi - bounded.lo)
-        dtheta_draw = span * frac * (1.0 - frac)  # θ = log lo + span·sigmoid(raw) (log) or lo + span·sigmoid(raw)
-        out.append(float(grad) / max(dtheta_draw, 1e-300))
-    return np.array(out)

@@ -40,6 +40,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..slice_correction import SliceCorrection
 from .models import FitModel
+from .parameters import ParameterSet
 
 Z95 = 1.959963984540054
 MAX_FACTOR = 3.0            # a log-scaled parameter known to within a factor 3 either way
@@ -109,7 +110,7 @@ def effective_samples(residuals: np.ndarray) -> float:
     return max(len(r) * (1.0 - rho) / (1.0 + rho), 2.0)
 
 
-def laplace(model: FitModel, theta: np.ndarray, jacobian: np.ndarray, residuals: np.ndarray,
+def laplace(model: ParameterSet, theta: np.ndarray, jacobian: np.ndarray, residuals: np.ndarray,
             readings: np.ndarray | None = None, model_error: float = 0.0,
             windows: np.ndarray | None = None, viscous_readings: np.ndarray | None = None,
             inertial_error: float = 0.0) -> Uncertainty:

@@ -135,12 +135,13 @@ class Plan:
             # with a fitted lag the coarse Jacobian is that of the lagged reading while Broyden follows the bare
             # one: a phase shift of ωτ (0.13 rad at 20 ms and a 1 s period), left to the secant updates
             model, jacobian, readings = start.model.copy(), start.jacobian, start.simulated_readings
-            if name == "corotated":  # keep its apparent viscosity mu * dt across the change of step
+            if start.model.is_baseline:  # keep its apparent viscosity mu * dt across the change of step
                 mu = start.model.params_si()["shear_modulus"]
-                model = FitModel.named("corotated", dt=dt, shear_modulus=mu * start.model.dt / dt)
+                model = FitModel.named(name, dt=dt, shear_modulus=mu * start.model.dt / dt)
             models = [model]
-            if name not in ("newtonian", "corotated"):  # and from the stage's Newtonian fit, which the law contains:
-                # two Broyden steps from the coarse optimum alone left Carreau above it (docs/benchmarks.md)
+            if name != "newtonian" and not start.model.is_baseline:
+                # and from the stage's Newtonian fit, which the law contains: two Broyden steps from the coarse
+                # optimum alone left Carreau above it (docs/benchmarks.md)
                 eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
                 models.append(newtonian_embedding(name, eta, self.shear_rate))
         elif name == "newtonian":

@@ -2,11 +2,11 @@
 
 from .config import COARSE_STAGE, FINE_STAGE, SimConfig
 from .hidden_physics import HiddenPhysics, TemperatureDrift, Thixotropy, Viscoelasticity
-from .materials import Corotated, KelvinVoigt
+from .materials import Corotated, KelvinVoigt, Material, StatefulMaterial, StepDependentMaterial, as_material
 from .sensitivity import Sensitivities, force_sensitivities
 from .simulator import SimResult, StirringSimulator, simulate
 from .state import State
 
-__all__ = ["COARSE_STAGE", "Corotated", "FINE_STAGE", "HiddenPhysics", "KelvinVoigt", "Sensitivities", "SimConfig",
-           "SimResult", "State", "StirringSimulator", "TemperatureDrift", "Thixotropy", "Viscoelasticity",
-           "force_sensitivities", "simulate"]
+__all__ = ["COARSE_STAGE", "Corotated", "FINE_STAGE", "HiddenPhysics", "KelvinVoigt", "Material", "Sensitivities",
+           "SimConfig", "SimResult", "State", "StatefulMaterial", "StepDependentMaterial", "StirringSimulator",
+           "TemperatureDrift", "Thixotropy", "Viscoelasticity", "as_material", "force_sensitivities", "simulate"]

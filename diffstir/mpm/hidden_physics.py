@@ -87,7 +87,8 @@ class TemperatureDrift:
 
 class HiddenPhysics(nn.Module):
     """The paper's Kelvin-Voigt fluid with ``law`` plus optional thixotropy, viscoelasticity and temperature drift
-    (see the module docstring). ``horizon`` [s]: the longest rollout, for the viscosity bound of the time step."""
+    (see the module docstring), a ``materials.StatefulMaterial``. ``horizon`` [s]: the longest rollout, for the
+    viscosity bound of the time step."""
 
     def __init__(self, law: nn.Module, *, thixotropy: Thixotropy | None = None,
                  viscoelasticity: Viscoelasticity | None = None, temperature: TemperatureDrift | None = None,

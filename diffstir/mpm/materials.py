@@ -1,13 +1,19 @@
 """Constitutive models: the fluid's shear stress from its velocity gradient.
 
-Both materials share the simulator's weakly compressible volumetric response τ_v(J) (evaluated on the particles,
-``volumetric_stress``); they differ in the shear stress (evaluated in grid cells, ``shear_stress``).
+Every material shares the simulator's weakly compressible volumetric response τ_v(J) (evaluated on the particles,
+``volumetric_stress``); materials differ in the shear stress (evaluated in grid cells, ``shear_stress``). What the
+simulator asks of a material is the protocol ``Material``; ``as_material`` turns a fluid handed to the simulator
+(a rheology law or a material) into one.
 """
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import torch
 from torch import Tensor, nn
+
+from ..rheology import RheologyLaw
 
 SHEAR_RATE_FLOOR = 1e-6  # 1/s, keeps d(shear rate)/dC finite where the fluid is at rest
 
@@ -27,6 +33,62 @@ def shear_rate(dev_D: Tensor) -> Tensor:
 def volumetric_stress(J: Tensor, bulk_modulus: float) -> Tensor:
     """Neo-Hookean volumetric stress τ_v = κ/2 (J − 1/J) [Pa] (the paper's Eq. 3): tension positive."""
     return 0.5 * bulk_modulus * (J - 1.0 / J)
+
+
+@runtime_checkable
+class Material(Protocol):
+    """What the simulator asks of a material (an ``nn.Module``, whose parameters are the rollout's): the shear
+    stress of grid cells and a bound of its viscosity for the time step. ``KelvinVoigt``, ``Corotated`` and
+    ``hidden_physics.HiddenPhysics`` implement it; a material with a state of its own is a ``StatefulMaterial``,
+    one whose stress depends on the step itself a ``StepDependentMaterial``."""
+
+    def shear_stress(self, grad_v: Tensor, viscosity_cap: float, dt: float) -> Tensor:
+        """Deviatoric stress [Pa], (K, d, d), of cells with velocity gradients ``grad_v`` [1/s], (K, d, d), over a
+        step ``dt`` [s], with the apparent viscosity at most ``viscosity_cap`` [Pa·s]."""
+        ...
+
+    def max_viscosity(self, shear_rate_max: float) -> float:
+        """Upper bound of the apparent viscosity [Pa·s] up to ``shear_rate_max`` [1/s], for the time-step limit."""
+        ...
+
+
+@runtime_checkable
+class StatefulMaterial(Material, Protocol):
+    """A material with a state of its own (``State.material``), which each step's shear stress advances."""
+
+    def initial_material_state(self, scene) -> Tensor:
+        """The state of the fluid at rest on ``scene``'s grid, as one flat tensor."""
+        ...
+
+    def shear_stress(self, grad_v: Tensor, viscosity_cap: float, dt: float, *,
+                     state: Tensor) -> tuple[Tensor, Tensor]:
+        """The stress [Pa], (K, d, d), as ``Material.shear_stress``, and the ``state`` after the step ``dt`` [s]."""
+        ...
+
+
+@runtime_checkable
+class StepDependentMaterial(Material, Protocol):
+    """A material that says whether its stress depends on the step ``dt`` itself (``step_dependent``: True for
+    ``Corotated``, whose viscosity is μ Δt); the simulator then does not split the step into shear-stress
+    substeps."""
+
+    step_dependent: bool
+
+
+def as_material(fluid: nn.Module) -> nn.Module:
+    """The material of ``fluid``: ``fluid`` itself when it is a ``Material``, a rheology law
+    (``diffstir.rheology.RheologyLaw``) in the paper's ``KelvinVoigt`` material.
+
+    Raises:
+        TypeError: ``fluid`` is neither an ``nn.Module`` material nor a rheology law.
+    """
+    if isinstance(fluid, nn.Module) and isinstance(fluid, Material):
+        return fluid
+    if isinstance(fluid, RheologyLaw):
+        return KelvinVoigt(fluid)
+    raise TypeError("fluid must be a rheology law or a material nn.Module (shear_stress(grad_v, viscosity_cap, dt) "
+                    f"and max_viscosity(shear_rate_max)), got {type(fluid).__name__}; for example "
+                    "diffstir.rheology.Newtonian(eta=0.1)")
 
 
 class KelvinVoigt(nn.Module):

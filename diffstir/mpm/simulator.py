@@ -20,7 +20,7 @@ from ..trajectory import Trajectory
 from .boundaries import RodPose
 from .build import build_scene, settled_state
 from .config import SimConfig
-from .materials import KelvinVoigt
+from .materials import StatefulMaterial, StepDependentMaterial, as_material
 from .scene import Scene
 from .state import State
 from .step import step
@@ -62,7 +62,7 @@ class StirringSimulator(nn.Module):
 
     Args:
         fluid: a rheology law (``diffstir.rheology``; wrapped in the paper's Kelvin-Voigt material) or a material
-            module (``KelvinVoigt``, ``Corotated``).
+            module (``materials.Material``: ``KelvinVoigt``, ``Corotated``, ``HiddenPhysics``; ``as_material``).
         rig: cup and rod (default: the paper's rig).
         config: resolution and numerics (default: ``SimConfig()``).
         density: the fluid's density [kg/m³].
@@ -72,10 +72,7 @@ class StirringSimulator(nn.Module):
     def __init__(self, fluid: nn.Module, rig: Rig | None = None, config: SimConfig | None = None, *,
                  density: float = 1000.0, cache_dir: str | Path | None = None):
         super().__init__()
-        if not isinstance(fluid, nn.Module):
-            raise TypeError(f"fluid must be a rheology law or a material nn.Module, got {type(fluid).__name__}; "
-                            "for example diffstir.rheology.Newtonian(eta=0.1)")
-        self.material = fluid if hasattr(fluid, "shear_stress") else KelvinVoigt(fluid)
+        self.material = as_material(fluid)
         self.rig = rig or Rig()
         self.config = config or SimConfig()
         self.density = float(density)
@@ -145,7 +142,8 @@ class StirringSimulator(nn.Module):
     def subcycles(self) -> bool:
         """Whether the shear stress runs in substeps of its explicit limit (``SimConfig.viscous_substeps``); never
         for a material whose stress depends on the step itself (``Corotated``: μ Δt)."""
-        return self.config.viscous_substeps and not getattr(self.material, "step_dependent", False)
+        step_dependent = isinstance(self.material, StepDependentMaterial) and self.material.step_dependent
+        return self.config.viscous_substeps and not step_dependent
 
     def substeps(self, trajectory: Trajectory, dt: float) -> int:
         """m, the shear stress's substeps in a step ``dt`` [s]: the fewest that keep dt/m within the
@@ -159,7 +157,7 @@ class StirringSimulator(nn.Module):
         (``material.initial_material_state(scene)``) for a material that has one."""
         pose = self._poses(trajectory, np.array([trajectory.t[0], trajectory.t[0] + 1e-3]))[0]
         state = settled_state(self.scene, self.rig, self.config, self.density, pose, self.cache_dir)
-        if hasattr(self.material, "initial_material_state"):
+        if isinstance(self.material, StatefulMaterial):
             state.material = self.material.initial_material_state(self.scene)
         return state
 
