@@ -78,10 +78,49 @@ def test_experiment_settings_missing_values_and_other_apps_are_refused_in_one_li
                        "behaviour.inertial_error=-1", cwd=tmp_path), "diffstir-fit",
                    "behaviour.inertial_error = -1.0; expected a relative force error in [0, 1)")
     assert_refused(run("diffstir-fit", cwd=tmp_path), "diffstir-fit", "Missing mandatory value: recording")
-    assert_refused(run("diffstir-diagnose", f"recording={EXAMPLE}", "candidates=[sensor_lag,gremlins]",
-                       cwd=tmp_path), "diffstir-diagnose", "candidates: unknown gremlins; choose from sensor_lag")
+    assert_refused(run("diffstir-diagnose", f"recording={EXAMPLE}", "diagnosis.candidates=[sensor_lag,gremlins]",
+                       cwd=tmp_path), "diffstir-diagnose",
+                   "diagnosis.candidates: unknown gremlins; choose from sensor_lag")
     assert_refused(run("diffstir-simulate", "stir.radius=-0.01", f"out={tmp_path / 'sim'}", cwd=tmp_path),
                    "diffstir-simulate", "stir: circle: radius = -0.01 m")
+    assert not any(tmp_path.iterdir())
+
+
+RECORD = ["hardware/adc=emulated", "hardware/arm=replay", "hardware/gripper=emulated", "density.skip=true"]
+
+
+@pytest.mark.parametrize("app, args, message", [
+    ("diffstir-diagnose", [f"recording={EXAMPLE}", "diagnosis.candidates=[nonsense]"],
+     "diagnosis.candidates: unknown nonsense; choose from sensor_lag, sensor_deadband, sensor_drift, thixotropy"),
+    ("diffstir-diagnose", [f"recording={EXAMPLE}", "diagnosis.window=0"], "diagnosis.window = 0.0 s; expected at "
+                                                                           "least 0.001 s, or null"),
+    ("diffstir-diagnose", [f"recording={EXAMPLE}", "diagnosis.max_iterations=0"],
+     "diagnosis.max_iterations = 0; expected a whole number of at least 1"),
+    ("diffstir-diagnose", [f"recording={EXAMPLE}", "candidates=[sensor_lag]"], "Could not override 'candidates'."),
+    ("diffstir-train-rectifier", ["model.activation=nonsense"], "model.activation = 'nonsense'; choose from tanh, "
+                                                                "relu, silu"),
+    ("diffstir-train-rectifier", ["model.inputs=[speed]"], "model.inputs: unknown speed; choose from "
+                                                           "mean_stirring_speed, preliminary_viscosity"),
+    ("diffstir-train-rectifier", ["split.test_fraction=0.95"], "split.val_fraction + split.test_fraction = 1.05; "
+                                                               "expected less than 1"),
+    ("diffstir-train-rectifier", ["train.epochs=0"], "train.epochs = 0; expected a whole number of at least 1"),
+    ("diffstir-train-rectifier", ["device=tpu"], "device = 'tpu'; choose from cpu, gpu, auto"),
+    ("diffstir-record", [*RECORD, "grip.force_percent=5"], "grip.force_percent = 5.0 %; expected 20 to 100 %"),
+    ("diffstir-record", [*RECORD, "dry_run.mode=wet"], "dry_run.mode = 'wet'; choose from mean, profile"),
+    ("diffstir-record", [*RECORD, "sensor.mode=nonsense"], "sensor.mode = 'nonsense'; choose from component, "
+                                                           "tangential, magnitude"),
+    ("diffstir-record", [*RECORD, "stir.duration=-1"], "stir.duration = -1.0 s; expected a positive number in s"),
+    ("diffstir-pairs", ["+pairs.design.laws.bingham=0.1"], "pairs.design.laws: unknown bingham; choose from carreau"),
+    ("diffstir-pairs", ["pairs.design.fluids_per_shard=0"], "pairs.design.fluids_per_shard = 0; expected a whole "
+                                                            "number of at least 1"),
+    ("diffstir-pairs", ["shard=25"], "shard = 25; expected 0 <= shard < 25"),
+    ("diffstir-pairs", ["retries=-1"], "retries = -1; expected at least 0"),
+    ("diffstir-synth", ["lab.sensor.mode=nonsense"], "lab/sensor: sensor.mode = 'nonsense'; expected one of "
+                                                     "component, tangential, magnitude"),
+], ids=lambda value: " ".join(value) if isinstance(value, list) else None)
+def test_a_wrong_setting_of_the_other_apps_is_refused_in_one_line_before_anything_runs(tmp_path, app, args, message):
+    done = run(app, *args, "out=out", cwd=tmp_path)
+    assert_refused(done, app, message)
     assert not any(tmp_path.iterdir())
 
 

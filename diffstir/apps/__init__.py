@@ -27,12 +27,15 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
 from diffstir.behaviour import BehaviourSettings
+from diffstir.diagnosis import DiagnosisSettings
 from diffstir.errors import DiffstirError, check_at_least
 from diffstir.fitting import FitSettings
+from diffstir.hardware import DensitySettings, DryRunSettings, GripSettings, SensorSettings, StirSettings
 from diffstir.mixing import MixingSettings
 from diffstir.parallel import default_workers
 from diffstir.recording import load_recording
 from diffstir.recording.digest import recording_digest
+from diffstir.rectifier.settings import DesignSettings, ModelSettings, SplitSettings, TrainSettings
 
 #: The project's Hydra configs (the repository's top-level conf/), as an absolute path so that the apps find them
 #: whether started as console scripts, with python -m, or from another working directory.
@@ -40,7 +43,13 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 #: The schemas of the config nodes that have one, by name: a defaults entry ``- <name>@<node>`` composes the node on
 #: it, so that an unknown key or a value of the wrong type is refused when the command line is composed.
-SCHEMAS = {"fit_settings": FitSettings, "behaviour_settings": BehaviourSettings, "mixing_settings": MixingSettings}
+SCHEMAS = {"fit_settings": FitSettings, "behaviour_settings": BehaviourSettings, "mixing_settings": MixingSettings,
+           "diagnosis_settings": DiagnosisSettings,
+           "rectifier_model_settings": ModelSettings, "rectifier_train_settings": TrainSettings,
+           "rectifier_split_settings": SplitSettings, "pair_design_settings": DesignSettings,
+           "record_sensor_settings": SensorSettings, "record_grip_settings": GripSettings,
+           "record_dry_run_settings": DryRunSettings, "record_density_settings": DensitySettings,
+           "record_stir_settings": StirSettings}
 for _name, _schema in SCHEMAS.items():
     ConfigStore.instance().store(name=_name, node=_schema)
 

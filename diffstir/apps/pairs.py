@@ -13,14 +13,20 @@ from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import check_processes, command
-from diffstir.rectifier.pairs import collect, design_from_mapping, run_shard
+from diffstir.errors import ConfigError, check_at_least
+from diffstir.rectifier.pairs import collect, run_shard
 
 
 @command("diffstir-pairs", "pairs")
 def main(cfg: DictConfig) -> None:
     check_processes(cfg)
+    check_at_least("shard", cfg.shard, 0)
+    check_at_least("retries", cfg.retries, 0)
+    design = OmegaConf.to_object(cfg.pairs.design).design()  # a DesignSettings, checked (its schema)
+    if not cfg.collect and cfg.shard >= design.shards:
+        raise ConfigError(f"shard = {cfg.shard}; expected 0 <= shard < {design.shards} (the design's programmes x "
+                          "densities)")
     torch.set_num_threads(int(cfg.threads))
-    design = design_from_mapping(OmegaConf.to_container(cfg.pairs.design, resolve=True))
     out = to_absolute_path(str(cfg.out))
     if cfg.collect:
         manifest = collect(design, out)

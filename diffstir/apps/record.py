@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import math
 import sys
+from dataclasses import asdict
 
 import numpy as np
 from hydra.utils import instantiate
@@ -23,20 +24,20 @@ from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import Run, command
 from diffstir.errors import ConfigError, DiffstirError
-from diffstir.hardware import HardwareError, Session, load_calibration, load_trajectory
+from diffstir.hardware import DensitySettings, HardwareError, Session, StirSettings, load_calibration, load_trajectory
 from diffstir.recording import CupGeometry, RodGeometry, SensorSpec
 from diffstir.trajectory import Trajectory, circle
 
 DENSITY_FIELDS = {"rod_weight": "N", "immersed_reading": "N", "immersed_depth": "m"}
 
 
-def _programme(cfg: DictConfig) -> Trajectory:
+def _programme(stir: StirSettings) -> Trajectory:
     """The stirring programme: a trajectory file, or a circle of ``radius`` [m] at ``speed`` [m/s] or
     ``rev_per_s`` [rev/s] (speed = 2 pi radius rev_per_s)."""
-    if cfg.file:
-        return load_trajectory(cfg.file)
-    speed = cfg.speed if cfg.speed is not None else 2 * math.pi * cfg.radius * cfg.rev_per_s
-    return circle(cfg.radius, speed, cfg.duration, ramp_time=cfg.ramp_time, clockwise=cfg.clockwise,
+    if stir.file:
+        return load_trajectory(stir.file)
+    speed = stir.speed if stir.speed is not None else 2 * math.pi * stir.radius * stir.rev_per_s
+    return circle(stir.radius, speed, stir.duration, ramp_time=stir.ramp_time, clockwise=stir.clockwise,
                   sample_rate=200.0)
 
 
@@ -49,12 +50,12 @@ def _dry_programme(stir: Trajectory, mode: str, duration: float, lift: float) ->
     return Trajectory(t, np.broadcast_to(stir.xy[0], (t.size, 2)), stir.z[0] + lift, 0.0)
 
 
-def _density(cfg: DictConfig, depth: float, interactive: bool) -> dict | None:
-    """The density measurement's values from the config (h defaults to the rod's immersion ``depth`` [m]);
+def _density(settings: DensitySettings, depth: float, interactive: bool) -> dict | None:
+    """The density measurement's values from the settings (h defaults to the rod's immersion ``depth`` [m]);
     missing ones are asked for later when interactive."""
-    if cfg.skip:
+    if settings.skip:
         return None
-    values = {k: cfg[k] for k in (*DENSITY_FIELDS, "rod_cross_section")}
+    values = {k: getattr(settings, k) for k in (*DENSITY_FIELDS, "rod_cross_section")}
     if values["immersed_depth"] is None:
         values["immersed_depth"] = depth
     missing = [k for k in DENSITY_FIELDS if values[k] is None]
@@ -74,14 +75,19 @@ def _ask_missing(values: dict) -> dict:
 
 
 def record(cfg: DictConfig) -> Session:
-    """Run the session ``cfg`` describes; returns it (its ``path`` holds everything recorded)."""
+    """Run the session ``cfg`` describes; returns it (its ``path`` holds everything recorded). The ``sensor``,
+    ``grip``, ``dry_run``, ``density`` and ``stir`` blocks are built on their schemas (``diffstir.hardware.settings``,
+    registered in ``diffstir.apps``): a value outside its range or choices is a ConfigError before any device
+    opens."""
+    sensor, grip, dry_run, density_settings, stir_settings = (
+        OmegaConf.to_object(cfg[key]) for key in ("sensor", "grip", "dry_run", "density", "stir"))
     interactive = bool(cfg.interactive)
-    density = _density(cfg.density, cfg.rig.rod.immersion_depth, interactive)
+    density = _density(density_settings, cfg.rig.rod.immersion_depth, interactive)
     rig = instantiate(cfg.rig)
     if rig.rod.mesh is not None:
         raise ConfigError("rig.rod.mesh: a recording's rod is a cylinder; record with rig.rod.mesh=null")
-    stir = _programme(cfg.stir)
-    dry = _dry_programme(stir, cfg.dry_run.mode, cfg.dry_run.duration, cfg.dry_run.lift)
+    stir = _programme(stir_settings)
+    dry = _dry_programme(stir, dry_run.mode, dry_run.duration, dry_run.lift)
 
     def step(message: str) -> None:
         if interactive:
@@ -101,7 +107,7 @@ def record(cfg: DictConfig) -> Session:
             cfg.out, adc=adc, arm=arm, calibration=calibration, gripper=gripper, name=cfg.name, resume=cfg.resume,
             cup=CupGeometry(rig.cup.radius, fill_height=rig.cup.fill_height),
             rod=RodGeometry(rig.rod.radius, rig.rod.immersion_depth),
-            sensor=SensorSpec(**{**cfg.sensor, "axis": tuple(cfg.sensor.axis) if cfg.sensor.axis else None}),
+            sensor=SensorSpec(**{**asdict(sensor), "axis": tuple(sensor.axis) if sensor.axis else None}),
             fluid=cfg.fluid, temperature=cfg.temperature, flush_interval=cfg.flush_interval, latency=cfg.latency,
             config=OmegaConf.to_container(cfg, resolve=True))
         Run.writes(session.path)
@@ -109,11 +115,11 @@ def record(cfg: DictConfig) -> Session:
         with session:
             if gripper is not None:
                 step("Hold the rod between the gripper's fingers: the gripper initialises and closes on it.")
-                session.grip(cfg.grip.force_percent, timeout=cfg.grip.timeout)
+                session.grip(grip.force_percent, timeout=grip.timeout)
             if session.baseline is None:
-                step(f"Dry run ({cfg.dry_run.mode}): the rod is held {cfg.dry_run.lift} m above its immersed pose, "
+                step(f"Dry run ({dry_run.mode}): the rod is held {dry_run.lift} m above its immersed pose, "
                      "out of the fluid.")
-                session.dry_run(dry, mode=cfg.dry_run.mode)
+                session.dry_run(dry, mode=dry_run.mode)
             if session.density is None and density is not None:
                 if interactive:
                     step("Density: weigh the rod held vertical in air (G), then immersed at rest (R).")

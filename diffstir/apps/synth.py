@@ -6,7 +6,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
+from dataclasses import fields
 from pathlib import Path
 from typing import NamedTuple
 
@@ -15,7 +18,7 @@ from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import Run, command
-from diffstir.errors import OutputError
+from diffstir.errors import ConfigError, DiffstirError, OutputError, check_choices
 from diffstir.lab import (
     Blend, FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise,
     synthesise_blend, truth_path, write_lab_recording,
@@ -63,15 +66,36 @@ class LabSetup(NamedTuple):
 
 
 def lab_setup(cfg: DictConfig) -> LabSetup:
-    """The ``LabSetup`` of a composed ``synth`` configuration; a wrong setting raises before any simulation."""
+    """The ``LabSetup`` of a composed ``synth`` configuration; a wrong setting raises a ConfigError that names its
+    group before any simulation."""
     lab = OmegaConf.to_container(cfg.lab, resolve=True)
     programme = lab["programme"]
-    trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
-                                    ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
-    return LabSetup(rig=instantiate(cfg.rig), sim_config=instantiate(cfg.lab.sim),
-                    fluid=Fluid.from_mapping(lab["fluid"]), blend=_blend(lab["blend"]) if lab.get("blend") else None,
-                    programme=programme, trajectory=trajectory, sensor=SensorModel(**lab["sensor"]),
-                    physics=HiddenPhysicsSpec.from_mapping(lab["physics"]))
+    with _refused_as("lab/programme"):
+        trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
+                                        ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
+    with _refused_as("lab/fluid"):
+        fluid = Fluid.from_mapping(lab["fluid"])
+    with _refused_as("lab/blend"):
+        blend = _blend(lab["blend"]) if lab.get("blend") else None
+    check_choices("lab.sensor", list(lab["sensor"]), [f.name for f in fields(SensorModel)])
+    with _refused_as("lab/sensor"):
+        sensor = SensorModel(**lab["sensor"])
+    with _refused_as("lab/physics"):
+        physics = HiddenPhysicsSpec.from_mapping(lab["physics"])
+    return LabSetup(rig=instantiate(cfg.rig), sim_config=instantiate(cfg.lab.sim), fluid=fluid, blend=blend,
+                    programme=programme, trajectory=trajectory, sensor=sensor, physics=physics)
+
+
+@contextlib.contextmanager
+def _refused_as(group: str) -> Iterator[None]:
+    """Raise a lab's ValueError or TypeError (a value outside its range, an unknown field) as a ConfigError that
+    names the config ``group``."""
+    try:
+        yield
+    except DiffstirError:
+        raise
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{group}: {error}") from error
 
 
 def _blend(cfg: dict) -> Blend:

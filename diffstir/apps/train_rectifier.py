@@ -23,7 +23,8 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import Run, check_processes, command
-from diffstir.errors import ConfigError, OutputError
+from diffstir.errors import ConfigError, OutputError, check_choice
+from diffstir.rectifier.settings import ACCELERATORS
 from diffstir.rectifier.training import PairData, evaluate, train
 
 
@@ -33,6 +34,8 @@ OUTPUTS = ("rectifier.ckpt", "card.json")
 @command("diffstir-train-rectifier", "rectifier")
 def main(cfg: DictConfig) -> None:
     check_processes(cfg)
+    model, training, split = (OmegaConf.to_object(cfg[key]) for key in ("model", "train", "split"))  # checked
+    check_choice("device", cfg.device, ACCELERATORS)
     torch.set_num_threads(int(cfg.threads))
     data_path, out = Path(to_absolute_path(str(cfg.data))), Path(to_absolute_path(str(cfg.out)))
     if not data_path.is_file():
@@ -41,10 +44,9 @@ def main(cfg: DictConfig) -> None:
     if existing and not cfg.overwrite:
         raise OutputError(f"{', '.join(existing)}: a trained rectifier is already there; give another out= or "
                           "overwrite=true")
-    L.seed_everything(int(cfg.train.seed), workers=True)
-    data = PairData(data_path, list(cfg.model.inputs), val_fraction=cfg.split.val_fraction,
-                    test_fraction=cfg.split.test_fraction, batch_size=int(cfg.train.batch_size),
-                    seed=int(cfg.split.seed))
+    L.seed_everything(training.seed, workers=True)
+    data = PairData(data_path, model.inputs, val_fraction=split.val_fraction, test_fraction=split.test_fraction,
+                    batch_size=training.batch_size, seed=split.seed)
     estimators = {json.dumps(p["estimator_config"], sort_keys=True) for p in data.all_pairs}
     if len(estimators) != 1:
         raise ConfigError(f"{data_path}: pairs from {len(estimators)} estimator resolutions; train on one")
@@ -60,10 +62,9 @@ def main(cfg: DictConfig) -> None:
                                 ("design_digest", "pairs", "fluids", "complete", "sha256")}
     Run.writes(out)
     started = time.perf_counter()
-    module, trainer = train(data, hidden=list(cfg.model.hidden), activation=cfg.model.activation,
-                            residual=bool(cfg.model.residual),
-                            learning_rate=float(cfg.train.learning_rate), epochs=int(cfg.train.epochs),
-                            early_stopping_patience=int(cfg.train.patience) if cfg.train.early_stopping else None,
+    module, trainer = train(data, hidden=model.hidden, activation=model.activation, residual=model.residual,
+                            learning_rate=training.learning_rate, epochs=training.epochs,
+                            early_stopping_patience=training.patience if training.early_stopping else None,
                             accelerator=cfg.device, logger=TensorBoardLogger(str(out), name="tensorboard"),
                             metadata=metadata)
     seconds = time.perf_counter() - started

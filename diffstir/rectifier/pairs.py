@@ -26,13 +26,14 @@ import math
 import time
 import traceback
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from diffstir.density import density_estimate
+from diffstir.errors import ConfigError, check_choices
 from diffstir.fitting import (PROBE_INDEX_STEP, StirProblem, ViscosityLadder, Windows, effective_shear_rate,
                               mean_stirring_speed)
 from diffstir.lab import (
@@ -92,23 +93,45 @@ class PairDesign:
 
     def __post_init__(self) -> None:
         if not self.programmes or not self.densities:
-            raise ValueError("pairs.design: programmes and densities must both be non-empty")
+            raise ConfigError("pairs.design: programmes and densities must both be non-empty")
+        for name, value, unit in (("duration", self.duration, "s"), ("window", self.window, "s")):
+            if not (_number(value) and value > 0):
+                raise ConfigError(f"pairs.design.{name} = {value!r} {unit}; expected a positive time in {unit}")
+        if not (_number(self.ramp_time) and self.ramp_time >= 0):
+            raise ConfigError(f"pairs.design.ramp_time = {self.ramp_time!r} s; expected a time >= 0 in s")
         for p in self.programmes:
-            if set(p) != {"radius", "speed"}:
-                raise ValueError(f"pairs.design.programmes: {dict(p)}; expected {{radius: m, speed: m/s}}")
+            if set(p) != {"radius", "speed"} or not all(_number(p[k]) and p[k] > 0 for k in p):
+                raise ConfigError(f"pairs.design.programmes: {dict(p)}; expected {{radius: m, speed: m/s}}, both "
+                                  "positive")
             period = 2 * math.pi * p["radius"] / p["speed"]
             if self.duration < period + self.ramp_time:
-                raise ValueError(f"pairs.design.duration = {self.duration} s is shorter than one stirring period "
-                                 f"({period:.3g} s) after the {self.ramp_time} s ramp of programme {dict(p)}")
+                raise ConfigError(f"pairs.design.duration = {self.duration} s is shorter than one stirring period "
+                                  f"({period:.3g} s) after the {self.ramp_time} s ramp of programme {dict(p)}")
         for rho in self.densities:
             if not 500.0 <= rho <= 3000.0:
-                raise ValueError(f"pairs.design.densities: {rho}; expected a liquid's density in kg/m^3")
+                raise ConfigError(f"pairs.design.densities: {rho}; expected a liquid's density in kg/m^3")
+        for name in ("fluids_per_shard", "sensors_per_fluid"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+                raise ConfigError(f"pairs.design.{name} = {value!r}; expected a whole number of at least 1")
         lo, hi = self.viscosity
         if not 0 < lo < hi:
-            raise ValueError(f"pairs.design.viscosity = {self.viscosity}; expected 0 < low < high in Pa s")
-        unknown = sorted(set(self.laws) - set(LAW_DRAWS))
-        if unknown or not self.laws:
-            raise ValueError(f"pairs.design.laws: unknown {unknown}; choose from {sorted(LAW_DRAWS)}")
+            raise ConfigError(f"pairs.design.viscosity = {self.viscosity}; expected 0 < low < high in Pa s")
+        check_choices("pairs.design.laws", list(self.laws), sorted(LAW_DRAWS))
+        if not self.laws or not all(_number(p) and p >= 0 for p in self.laws.values()) \
+                or not sum(self.laws.values()) > 0:
+            raise ConfigError(f"pairs.design.laws = {dict(self.laws)}; expected probabilities >= 0 [1] of one law "
+                              "or more, not all 0")
+        check_choices("pairs.design.sensor", list(self.sensor), [f.name for f in fields(SensorModel)])
+        try:
+            HiddenPhysicsSpec.from_mapping(self.physics)
+        except (TypeError, ValueError) as error:
+            raise ConfigError(f"pairs.design.physics: {error}") from None
+        if not (_number(self.holdout_fraction) and 0.0 <= self.holdout_fraction < 1.0):
+            raise ConfigError(f"pairs.design.holdout_fraction = {self.holdout_fraction!r}; expected a fraction of "
+                              "the window in [0, 1)")
+        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
+            raise ConfigError(f"pairs.design.seed = {self.seed!r}; expected a whole number of at least 0")
 
     @property
     def shards(self) -> int:
@@ -121,7 +144,7 @@ class PairDesign:
     def group(self, shard: int) -> tuple[Mapping, float]:
         """(programme, density) of ``shard``."""
         if not 0 <= shard < self.shards:
-            raise ValueError(f"shard = {shard}; expected 0 <= shard < {self.shards} (programmes x densities)")
+            raise ConfigError(f"shard = {shard}; expected 0 <= shard < {self.shards} (programmes x densities)")
         return self.programmes[shard // len(self.densities)], float(self.densities[shard % len(self.densities)])
 
     def digest(self) -> str:
@@ -442,7 +465,11 @@ def design_from_mapping(cfg: Mapping) -> PairDesign:
     cfg["viscosity"] = tuple(float(x) for x in cfg["viscosity"])
     cfg["laws"] = dict(cfg.get("laws") or {"newtonian": 1.0})
     cfg["sensor"] = dict(cfg.get("sensor") or {})
-    return replace(PairDesign(programmes=cfg.pop("programmes"), densities=cfg.pop("densities")), **cfg)
+    return PairDesign(**cfg)
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _plain(value):

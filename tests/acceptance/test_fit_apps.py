@@ -60,7 +60,7 @@ def test_diagnose_runs_its_default_candidates(tmp_path):
            timeout=3600))
     diagnosis = json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())
     assert diagnosis["verdict"]
-    configured = yaml.safe_load((Path(CONF_DIR) / "diagnose.yaml").read_text())["candidates"]
+    configured = yaml.safe_load((Path(CONF_DIR) / "diagnose.yaml").read_text())["diagnosis"]["candidates"]
     assert {r["effect"] for r in diagnosis["ranking"]} == set(check_names(configured))
     physics = [r for r in diagnosis["ranking"] if r["effect"] in PHYSICS_CANDIDATES and r.get("score") is not None]
     assert physics and all(r["simulations"] > 0 for r in physics)
