@@ -1,5 +1,5 @@
-"""The JSON and markdown files every report writes (identification, behaviour, mixing, diagnosis, lab truth), and
-how their values and 95 % intervals are printed."""
+"""The JSON and markdown files every report writes (identification, behaviour, mixing, diagnosis, lab truth), how
+their values and 95 % intervals are printed, and ``Report``, the one way a result writes itself."""
 
 from __future__ import annotations
 
@@ -7,8 +7,40 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
+
+
+class Report:
+    """A result that reports itself, the same way for every analysis: ``summary()`` is its JSON (SI units),
+    ``report()`` its markdown, ``plots(out)`` writes its figures, ``write(out)`` all three, and a notebook shows
+    ``report()`` (``_repr_html_``). A subclass defines ``summary``, ``report`` and, where it draws, ``plots``;
+    ``stem`` names its files (``<stem>.json``, ``<stem>.md``)."""
+
+    stem: ClassVar[str] = "report"
+
+    def summary(self) -> dict:
+        raise NotImplementedError
+
+    def report(self) -> str:
+        raise NotImplementedError
+
+    def plots(self, out: Path) -> dict[str, Path]:
+        """Write the result's figures into ``out``; return their paths by name (none by default)."""
+        return {}
+
+    def write(self, out: str | Path) -> dict[str, Path]:
+        """Write ``<stem>.json``, ``<stem>.md`` and the plots into ``out`` (created); return the paths by name
+        (``json``, ``md`` and each plot's)."""
+        paths = write_summary(out, self.stem, self.summary(), self.report())
+        paths.update(self.plots(Path(out)))
+        return paths
+
+    def _repr_html_(self) -> str:
+        import markdown
+
+        return markdown.markdown(self.report(), extensions=["tables"])
 
 
 def json_default(value):

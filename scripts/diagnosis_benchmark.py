@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from diffstir.diagnosis import CANDIDATES, diagnose, write_diagnosis
+from diffstir.diagnosis import CANDIDATES, DiagnosisSettings, diagnose
 from diffstir.fitting import FitSettings
 from diffstir.identification import identify
 from diffstir.lab import Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise
@@ -134,10 +134,11 @@ def run_case(lab: Lab, effect: str, strength: str, seed: int, config: SimConfig,
     recording, truth = lab.recording(effect, STRENGTHS[strength], seed)
     ident = identify(recording, ["newtonian"], config=config, baseline=False, progress=False, size_estimate=False,
                      fit=FitSettings(window=None, holdout_fraction=0.0, max_iterations=args.identify_iterations))
-    diag = diagnose(recording, ident, config=config, max_iterations=args.max_iterations)
+    diag = diagnose(recording, ident, config=config,
+                    settings=DiagnosisSettings(max_iterations=args.max_iterations))
     name = f"{effect}-{strength}-{lab.fluid.name.replace(' ', '_')}-{seed}"
     if args.write_reports:
-        write_diagnosis(diag, out / name)
+        diag.write(out / name)
     none, refit = diag.fits["none"], diag.refit
     true_fit = diag.fits.get(effect) if effect != "none" else None
     return {"case": name, "effect": effect, "strength": strength, "fluid": lab.fluid.name, "seed": seed,

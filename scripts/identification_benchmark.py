@@ -48,6 +48,7 @@ from diffstir.fitting.family import NEWTONIAN_CHANGE
 from diffstir.fitting.uncertainty import COARSE_FORCE_ERROR, MODEL_FORCE_ERROR
 from diffstir.identification import identify
 from diffstir.lab import Fluid, SensorModel, make_fluid_law, stirring_programme, synthesise
+from diffstir.report_files import format_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -188,8 +189,7 @@ def laws_part(args) -> list[dict]:
         print("| law | parameters (SI) [95 % CI] | identifiable | sensor | class: slope [95 % CI] | loss [N] | BIC |")
         print("|---|---|---|---|---|---|---|")
         for k, v in row["laws"].items():
-            text = ", ".join(f"{p} {x:.4g} [{_fmt(v['ci95'][p][0])}, {_fmt(v['ci95'][p][1])}]"
-                             for p, x in v["params"].items())
+            text = ", ".join(f"{p} {x:.4g} {format_interval(v['ci95'][p])}" for p, x in v["params"].items())
             ident = ", ".join(p for p, ok in v["identifiable"].items() if not ok) or "all"
             nuisances = ", ".join(f"{p} {x:.3g} {v['sensor']['units'][p]}" for p, x in v["sensor"].items()
                                   if p != "units") or "-"

@@ -33,7 +33,7 @@ from omegaconf import OmegaConf
 from diffstir.fitting.uncertainty import COARSE_FORCE_ERROR
 from diffstir.lab import (Blend, Fluid, SensorModel, simulate_truth, stirring_programme, synthesise_blend,
                           write_lab_recording)
-from diffstir.mixing import MixingSettings, analyse_mixing, write_mixing_report
+from diffstir.mixing import MixingSettings, analyse_mixing
 from diffstir.rheology.blending import blend_range, lederer_roegiers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,7 +76,7 @@ def main() -> None:
     result = analyse_mixing(lab.recording, config=fit_config,
                             settings=MixingSettings(viscosities=[eta1, eta2], fraction=fraction, window=args.window,
                                                     model_error=args.model_error))
-    write_mixing_report(result, args.out / "report")
+    result.write(args.out / "report")
     m = result.summary()["mixing"]
     history = json.loads(truth_file.read_text())["mixing"]
     low, high = blend_range(eta1, eta2, fraction)

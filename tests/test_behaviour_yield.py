@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.behaviour import BehaviourSettings, characterise, write_behaviour_report
+from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.behaviour.joint import (INDEX_SHIFTS, PASTE_SHARES, JointProblem, index_starts, paste_start,
                                      screened_starts)
 from diffstir.fitting.models import FitModel
@@ -57,7 +57,7 @@ def test_joint_fit_tells_a_yield_stress_from_a_power_law(law, label, tmp_path):
         lo, hi = check["joint_index_ci95"]
         assert lo <= law["params"]["n"] - 1 <= hi
     # the report states the test that decided
-    paths = write_behaviour_report(result, tmp_path)
+    paths = result.write(tmp_path)
     stated = json.loads(paths["json"].read_text())["behaviour"]
     assert stated["class"] == label and stated["yield_test"]["joint"]["weight"] == pytest.approx(c.joint.weight)
     assert "yield stress by the joint fit" in paths["md"].read_text()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.diagnosis import diagnose, needs_diagnosis, write_diagnosis
+from diffstir.diagnosis import DiagnosisSettings, diagnose, needs_diagnosis
 from diffstir.diagnosis.base import base_from_identification, law_from_report, simulate_base
 from diffstir.diagnosis.candidates import (PHYSICS_CANDIDATES, SENSOR_CANDIDATES, SLIP_STARTS, CachedReplay, Context,
                                            PhysicsModel, check_names, scaled_law)
@@ -321,8 +321,8 @@ def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
     report = {"selected": "newtonian", "laws": {"newtonian": {"params": {"eta": 0.96}}},
               "density": {"value": 1000.0}}
     (tmp_path / "report.json").write_text(json.dumps(report))
-    diag = diagnose(recording, tmp_path / "report.json", config=FAST, candidates=["sensor_lag", "viscoelasticity"],
-                    max_iterations=2)
+    diag = diagnose(recording, tmp_path / "report.json", config=FAST,
+                    settings=DiagnosisSettings(candidates=["sensor_lag", "viscoelasticity"], max_iterations=2))
     assert diag.verdict == "sensor_lag"
     assert diag.base.simulations == 2 and diag.fits["viscoelasticity"].simulations > 0
     fit = diag.fits["sensor_lag"]
@@ -331,7 +331,7 @@ def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
     # which leads the continuous response by half a sample; the candidate's exact response takes that up in τ
     assert lo <= 0.08 - 0.5 / RATE <= hi
     assert fit.law["params"]["eta"] == pytest.approx(0.8, rel=0.05)
-    paths = write_diagnosis(diag, tmp_path / "out")
+    paths = diag.write(tmp_path / "out")
     report = json.loads(paths["json"].read_text())
     top = report["ranking"][0]
     assert report["verdict"] == "sensor_lag" and top["effect"] == "sensor_lag"
@@ -374,7 +374,7 @@ def test_diagnose_app_writes_the_diagnosis(tmp_path, monkeypatch):
     (tmp_path / "fit" / "report.json").write_text(json.dumps(report))
     out = tmp_path / "out"
     monkeypatch.setattr(sys, "argv", ["diffstir-diagnose", f"recording={path}", f"identification={tmp_path / 'fit'}",
-                                      f"out={out}", "candidates=[sensor_lag,sensor_drift]", "sim.dx=0.01",
+                                      f"out={out}", "diagnosis.candidates=[sensor_lag,sensor_drift]", "sim.dx=0.01",
                                       "sim.sound_speed=2.0", "progress=false"])
     main()
     diagnosis = json.loads((out / "diagnosis.json").read_text())
@@ -389,8 +389,8 @@ def test_candidates_fitted_in_parallel_processes_equal_those_fitted_in_one(tmp_p
     report = {"selected": "newtonian", "laws": {"newtonian": {"params": {"eta": 0.96}}},
               "density": {"value": 1000.0}}
     (tmp_path / "report.json").write_text(json.dumps(report))
-    kwargs = dict(config=FAST, candidates=["sensor_lag", "wall_slip", "viscoelasticity"], max_iterations=1,
-                  window=0.5)
+    kwargs = dict(config=FAST, settings=DiagnosisSettings(candidates=["sensor_lag", "wall_slip", "viscoelasticity"],
+                                                          max_iterations=1, window=0.5))
     one, two = (diagnose(recording, tmp_path / "report.json", workers=n, **kwargs) for n in (1, 2))
     assert list(two.fits) == list(one.fits) == ["sensor_lag", "wall_slip", "viscoelasticity", "none"]
     for name, fit in one.fits.items():

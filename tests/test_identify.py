@@ -549,13 +549,14 @@ def test_a_checkpoint_of_another_recording_is_refused_unless_overwritten(newtoni
 
 
 def test_report_files(newtonian_identification):
-    from diffstir.identification.report import write_report
-
     result, out = newtonian_identification
-    paths = write_report(result, out)
+    paths = result.write(out)
     report = json.loads(paths["json"].read_text())
     assert report["selected"] in report["laws"]
-    assert set(report["laws"]["newtonian"]) >= {"params", "ci95", "loss", "identifiable"}
+    assert set(report["laws"]["newtonian"]) >= {"params", "standard_error", "ci95", "correlations", "loss",
+                                                "identifiable"}
+    assert paths["md"].read_text() == result.report()
+    assert "<table>" in result._repr_html_() and "<h1>Identification of" in result._repr_html_()
     assert report["simulation"]["force_error"] == MODEL_FORCE_ERROR
     assert set(report["apparent_viscosity"]) >= {"zero_shear", "effective_shear_rate", "at_effective_shear_rate",
                                                  "refined"}
@@ -573,7 +574,7 @@ def test_report_files(newtonian_identification):
     assert correction["flow_index"] == pytest.approx(1.0, abs=1e-5)
     assert f"C = {correction['factor']:.4g}" in paths["md"].read_text() and report["force_scale"] == "F' h C"
     # the paper's extruded slice, fit.slice_correction=false: said in the report, no correction given
-    from diffstir.identification.report import markdown
+    from diffstir.fitting.report import markdown
 
     plain = {**report, "slice_correction": None, "force_scale": "F' h (fit.slice_correction=false)"}
     assert "F = F' h (fit.slice_correction=false)" in markdown(plain)
@@ -589,7 +590,7 @@ def test_report_files(newtonian_identification):
 def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_identification):
     """A covariance singular in one direction (the power law's two columns nearly collinear, 1e-7 apart) gives
     intervals such as [4e-284, 1e+277]: the report gives null with identifiable false and says so in words."""
-    from diffstir.identification.report import markdown
+    from diffstir.fitting.report import markdown
 
     result, _ = newtonian_identification
     fit, train = result.fits["power_law"], result.problem.train
@@ -601,6 +602,7 @@ def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_i
     summary = replace(result, uncertainty={**result.uncertainty, "power_law": unc}).summary()
     law = summary["laws"]["power_law"]
     assert law["ci95"] == {"k": None, "n": None} and law["identifiable"] == {"k": False, "n": False}
+    assert law["standard_error"] == {"k": None, "n": None} and law["correlations"] == {}
     assert summary["laws"]["newtonian"]["ci95"]["eta"] is not None  # an identified one keeps its interval
     row = next(line for line in markdown(summary).splitlines() if line.startswith("| power_law |"))
     assert row.count("not identifiable") == 2 and "[" not in row
@@ -824,3 +826,30 @@ def test_an_inertia_dominated_stir_is_reported_as_such():
         resolvable = _resolvable(problem, fit)
         assert resolvable["viscous_share"] == pytest.approx(viscous_share, rel=1e-12)
         assert resolvable["inertia_dominated"] == (viscous_share < VISCOUS_SHARE_FLOOR)
+
+
+def test_parameter_summary_states_standard_errors_and_correlations():
+    """Delta method: a log-scaled parameter's standard error is its value times σ_θ (θ = ln value), an index's is
+    σ_θ; correlations are cov_ij / (σ_i σ_j) of θ; a parameter the data do not determine has neither."""
+    from diffstir.fitting import Uncertainty, parameter_summary
+
+    model = FitModel.named("carreau", eta0=2.0, eta_inf=0.01, lam=0.5, n=0.6)
+    theta, names = model.theta(), model.names
+    sigma = np.array([0.1, 0.2, 0.3, 0.05])
+    rho = np.array([[1.0, 0.5, -0.4, 0.2], [0.5, 1.0, 0.1, 0.0], [-0.4, 0.1, 1.0, 0.3], [0.2, 0.0, 0.3, 1.0]])
+    covariance = rho * np.outer(sigma, sigma)
+    identifiable = dict(zip(names, [True, False, True, True]))
+    unc = Uncertainty(covariance=covariance, ci95={k: (0.0, 1.0) for k in names}, identifiable=identifiable,
+                      at_bound=dict.fromkeys(names, False), effective_samples=100.0, residual_std=0.01)
+    summary = parameter_summary(model, theta, unc)
+    values = model.params_si()
+    for j, name in enumerate(names):
+        expected = sigma[j] * (values[name] if model.scales[j] == "log" else 1.0)
+        assert summary["standard_error"][name] == (pytest.approx(expected, rel=1e-12) if identifiable[name] else None)
+    assert summary["ci95"]["eta_inf"] is None and "eta_inf" not in summary["correlations"]
+    seen = [j for j, name in enumerate(names) if identifiable[name]]
+    for i in seen:
+        assert set(summary["correlations"][names[i]]) == {names[j] for j in seen if j != i}
+        for j in seen:
+            if j != i:
+                assert summary["correlations"][names[i]][names[j]] == pytest.approx(rho[i, j], rel=1e-12)

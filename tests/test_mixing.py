@@ -167,6 +167,9 @@ def test_mixing_experiment_writes_the_report(blend_lab, tmp_path, monkeypatch, c
     assert ETA2 < m["blend_viscosity"] < ETA1
     assert m["lederer_roegiers"]["range"] == pytest.approx(list(blend_range(ETA1, ETA2, blend.fraction)))
     assert (out / "time_course.png").stat().st_size > 0
+    text = (out / "report.md").read_text()
+    assert f"blend {m['blend_viscosity']:.4g} Pa·s" in text
+    assert sum(line.startswith("| ") for line in text.splitlines()) == len(course) + 1  # the header and each window
     # the progress bar's summary counts every window's simulations
     simulations = sum(p["evaluations"] for p in m["time_course"])
     assert re.search(rf"^mixing: {simulations} simulations in .+; {len(course)} windows$", capsys.readouterr().out,

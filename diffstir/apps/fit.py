@@ -15,12 +15,11 @@ from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import CONF_DIR, Run, check_processes, command, config_workers
-from diffstir.behaviour import characterise, write_behaviour_report
+from diffstir.behaviour import characterise
 from diffstir.errors import ConfigError, OutputError, check_at_least, check_choices
 from diffstir.fitting import FitSettings
 from diffstir.identification import identify
-from diffstir.identification.report import write_report
-from diffstir.mixing import analyse_mixing, time_windows, write_mixing_report
+from diffstir.mixing import analyse_mixing, time_windows
 from diffstir.recording import load_recording
 from diffstir.rheology import LAWS
 
@@ -47,7 +46,7 @@ def main(cfg: DictConfig) -> None:
     if rectifier is not None:
         result.refined = refined_viscosity(result, rectifier)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    paths = write_report(result, out)
+    paths = result.write(out)
     av = result.apparent_viscosity(result.selection["selected"])
     print(f"{result.selection['selected']}: {av['at_effective_shear_rate']:.4g} Pa·s at "
           f"{av['effective_shear_rate']:.3g} 1/s; wrote {paths['json']} and {paths['md']}")
@@ -64,7 +63,7 @@ def fit_settings(cfg: DictConfig) -> FitSettings:
 def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
     """``diagnose=true``: when the selected fit's residual is larger than the noise and structured, name the
     missing physics on the coarse (or the fit's) resolution into ``out/diagnosis/`` (docs/diagnosis.md)."""
-    from diffstir.diagnosis import diagnose, needs_diagnosis, write_diagnosis
+    from diffstir.diagnosis import DiagnosisSettings, diagnose, needs_diagnosis
 
     check = needs_diagnosis(result)
     if not check["needed"]:
@@ -72,9 +71,9 @@ def diagnose_if_poor(result, cfg: DictConfig, out: Path) -> None:
               f"{check['autocorrelation']:.2f}); no diagnosis needed")
         return
     config = instantiate(cfg.coarse) if cfg.get("coarse") else instantiate(cfg.sim)
-    diag = diagnose(result.recording, result, config=config, window=cfg.fit.window, progress=cfg.progress,
-                    workers=config_workers(cfg))
-    paths = write_diagnosis(diag, out / "diagnosis")
+    diag = diagnose(result.recording, result, config=config, settings=DiagnosisSettings(window=cfg.fit.window),
+                    progress=cfg.progress, workers=config_workers(cfg))
+    paths = diag.write(out / "diagnosis")
     print(f"diagnosis: {diag.verdict}; wrote {paths['json']}\n{diag.sentence}")
 
 
@@ -110,7 +109,7 @@ def behaviour(cfg: DictConfig) -> None:
     result = characterise(recordings, config=config, settings=settings, density=cfg.density,
                           workers=config_workers(cfg), progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    paths = write_behaviour_report(result, out)
+    paths = result.write(out)
     b = result.summary()["behaviour"]
     print(f"{b['class']} (confidence {b['confidence']:.2f}; slope {b['slope']:.3f}, 95 % CI {b['slope_ci95'][0]:.3f} "
           f"to {b['slope_ci95'][1]:.3f}, from the {b['slope_source']}); wrote {paths['json']}")
@@ -129,7 +128,7 @@ def mixing(cfg: DictConfig) -> None:
     result = analyse_mixing(recording, config=config, settings=settings, density=cfg.density,
                             progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    paths = write_mixing_report(result, out)
+    paths = result.write(out)
     a = result.approach
     ci = a.homogeneity_interval
     interval = f" (95 % CI {ci[0]:.3g}-{ci[1]:.3g} s)" if ci else ""

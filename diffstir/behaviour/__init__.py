@@ -7,9 +7,8 @@ from .classify import (CLASSES, Classification, JointYieldTest, Slope, SlopeEsti
                        joint_yield_test, log_slope)
 from .joint import JointFit, JointProblem, joint_fit
 from .pipeline import Behaviour, characterise, reclassify
-from .report import write_behaviour_report
 from .settings import JOINT_MODELS, SLOPE_TESTS, BehaviourSettings
 
 __all__ = ["Behaviour", "BehaviourSettings", "CLASSES", "Classification", "JOINT_MODELS", "JointFit", "JointProblem",
            "JointYieldTest", "SLOPE_TESTS", "Slope", "SlopeEstimate", "characterise", "classify", "combined_slope",
-           "joint_fit", "joint_yield_test", "log_slope", "reclassify", "write_behaviour_report"]
+           "joint_fit", "joint_yield_test", "log_slope", "reclassify"]

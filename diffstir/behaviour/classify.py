@@ -28,7 +28,7 @@ fitted (a curved flow curve inflates the straight line's χ² with misfit, not n
    without a yield stress, their Schwarz weights w_j = exp(−BIC_j/2) / Σ_l exp(−BIC_l/2) (BIC as −2 ln evidence,
    equal prior odds; Kass and Raftery 1995, Wagenmakers and Farrell 2004) give the weight W of the laws with a
    yield stress, and decide the yield stress in place of the points' test for any viscosity that does not rise:
-   **yield_stress** when W > 1/2, else the slope's class (a former **yield_stress** becomes **shear_thinning**).
+   **yield_stress** when W > 1/2, else the slope's class (the points' **yield_stress** then reads **shear_thinning**).
    The confidence is then the bootstrap share of the replicates that do not rise times W, or the share of the
    slope's class times 1 − W. A yield stress counts only where it is material: its share of the stress at the
    slowest probed shear rate, τ_y / (η(γ̇_min) γ̇_min), must exceed ``YIELD_SHARE_SIGMAS`` = 2 times the

@@ -42,10 +42,10 @@ import torch
 from torch import Tensor, nn
 
 from ..fitting import (NO_NUISANCE, YIELD_SHARES, FitJob, FitModel, FitResult, ReadingJob, SpeedWindow, StirProblem,
-                       Uncertainty, ViscosityPoint, Windows, bic, fit_simulations, initial_model, laplace, rank)
+                       Uncertainty, ViscosityPoint, Windows, bic, fit_simulations, initial_model, laplace,
+                       parameter_summary, rank)
 from ..mpm import SimConfig
 from ..parallel import Workers
-from ..report_files import finite_or_none
 from ..rheology import FlowCurve, fit_flow_curve, has_yield_stress, within_bounds
 
 #: Gauss-Newton iterations of each law's best start from a fresh finite-difference Jacobian, after its budget.
@@ -167,10 +167,7 @@ class JointFit:
     cost: dict[str, float]
 
     def summary(self) -> dict:
-        laws = {name: {"params": fit.model.params_si(), "units": fit.model.units,
-                       "ci95": {k: [finite_or_none(lo), finite_or_none(hi)]
-                                for k, (lo, hi) in self.uncertainty[name].ci95.items()},
-                       "identifiable": self.uncertainty[name].identifiable, "loss": fit.loss,
+        laws = {name: {**parameter_summary(fit.model, fit.theta, self.uncertainty[name]), "loss": fit.loss,
                        "weighted_rms": self.cost[name], "bic": self.bic[name],
                        "evaluations": fit.evaluations, "seconds": fit.seconds}
                 for name, fit in self.fits.items()}

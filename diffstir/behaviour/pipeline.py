@@ -17,26 +17,30 @@ import math
 import time
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
 from ..density import combined_density
 from ..errors import check_choice
-from ..fitting import (MODEL_FORCE_ERROR, Z95, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
+from ..fitting import (MODEL_FORCE_ERROR, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
                        window_event, window_simulations)
 from ..mpm import SimConfig
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
+from ..report_files import Report
 from ..rheology import has_yield_stress
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
 from .joint import JointFit, joint_fit, joint_simulations, yield_share
+from .report import markdown, plot_all
 from .settings import SLOPE_TESTS, BehaviourSettings
 
 
 @dataclass
-class Behaviour:
-    """What :func:`characterise` found; ``summary()`` is the JSON report (SI units)."""
+class Behaviour(Report):
+    """What :func:`characterise` found: ``summary()`` (report.json, SI units), ``report()`` (report.md),
+    ``plots(out)`` (viscosity_vs_speed.png, flow_curve.png), ``write(out)`` all of them."""
 
     density: dict
     points: list[ViscosityPoint]
@@ -63,6 +67,14 @@ class Behaviour:
                                             "mean of the windows' measured constants"},
                 "points": points,
                 "joint_fit": None if self.joint is None else self.joint.summary(), "seconds": self.seconds}
+
+    def report(self) -> str:
+        """report.md: the class, its slope and tests, the per-speed points and the joint fit's laws."""
+        return markdown(self.summary())
+
+    def plots(self, out: Path) -> dict[str, Path]:
+        """viscosity_vs_speed.png and flow_curve.png in ``out``."""
+        return plot_all(self, out)
 
 
 def characterise(recordings: list[Recording], *, config: SimConfig, settings: BehaviourSettings | None = None,
@@ -160,12 +172,12 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
 
 
 def reported_joint_index(summary: dict) -> SlopeEstimate | None:
-    """The joint power law's slope n − 1 [1] with the standard error from its 95 % interval, read off a behaviour
-    report (``Behaviour.summary()``); None without a joint power law."""
+    """The joint power law's slope n − 1 [1] with the standard error of n [1] (infinite where the recordings do not
+    determine n), read off a behaviour report (``Behaviour.summary()``); None without a joint power law."""
     law = (summary.get("joint_fit") or {"laws": {}})["laws"].get("power_law")
     if law is None:
         return None
-    lo, hi = law["ci95"]["n"]
-    return SlopeEstimate(law["params"]["n"] - 1.0, (hi - lo) / (2.0 * Z95))
+    std = law["standard_error"]["n"]
+    return SlopeEstimate(law["params"]["n"] - 1.0, math.inf if std is None else std)
 
 

@@ -1,6 +1,6 @@
-"""The behaviour report: ``report.json`` (SI units), ``report.md`` and the plots ``viscosity_vs_speed.png`` (the
-paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the points'
-slope line and the laws fitted to all speeds)."""
+"""The behaviour's report.md and plots (``Behaviour.report``, ``Behaviour.plots``): ``viscosity_vs_speed.png``
+(the paper's Fig. 5, with 95 % error bars) and ``flow_curve.png`` (η against the effective shear rate with the
+points' slope line and the laws fitted to all speeds)."""
 
 from __future__ import annotations
 
@@ -10,19 +10,11 @@ import numpy as np
 
 from ..fitting import log_viscosity_interval
 from ..plots import pyplot, save_figure, viscosity_band
-from ..report_files import format_bound, write_summary
-from .pipeline import Behaviour
-
-
-def write_behaviour_report(result: Behaviour, out: str | Path) -> dict[str, Path]:
-    """Write report.json, report.md and the two plots into ``out``; return the paths."""
-    summary = result.summary()
-    paths = write_summary(out, "report", summary, markdown(summary))
-    paths.update(plot(result, Path(out)))
-    return paths
+from ..report_files import format_param
 
 
 def markdown(summary: dict) -> str:
+    """report.md of a behaviour's ``summary`` (``Behaviour.summary``)."""
     b = summary["behaviour"]
     lo, hi = b["slope_ci95"]
     lines = [f"# Behaviour: **{b['class']}** (confidence {b['confidence']:.2f})", "",
@@ -63,14 +55,13 @@ def markdown(summary: dict) -> str:
         lines += ["", f"Joint fit over all speeds, selected by BIC: **{joint['selected']}**", "",
                   "| law | loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
         for name, law in joint["laws"].items():
-            params = "; ".join(f"{k} = {v:.4g} [{format_bound(law['ci95'][k][0])}, {format_bound(law['ci95'][k][1])}] "
-                               f"{law['units'][k]}" + ("" if law["identifiable"][k] else " (not identifiable)")
-                               for k, v in law["params"].items())
+            params = "; ".join(format_param(k, v, law["units"][k], law["ci95"][k]) for k, v in law["params"].items())
             lines.append(f"| {name} | {law['loss']:.4g} | {law['bic']:.1f} | {params} |")
     return "\n".join(lines) + "\n"
 
 
-def plot(result: Behaviour, out: Path) -> dict[str, Path]:
+def plot_all(result, out: Path) -> dict[str, Path]:
+    """viscosity_vs_speed.png and flow_curve.png of the ``Behaviour`` ``result`` in ``out``."""
     plt = pyplot()
     points = result.points
     speed = np.array([p.speed for p in points])

@@ -1,18 +1,18 @@
 """Diagnose a fit: locate the mismatch, fit every candidate extension, name the missing physics, and show the fit
 improve.
 
-    diag = diagnose(recording, identification, config=SimConfig(dim=2, dx=0.005, sound_speed=1.0))
+    diag = diagnose(recording, identification, config=COARSE_STAGE, settings=DiagnosisSettings(window=3.0))
     diag.verdict, diag.sentence
-    write_diagnosis(diag, "out/")            # diagnosis.json, diagnosis.md, plots
+    diag.write("out/")            # diagnosis.json, diagnosis.md, plots
 
 ``identification`` is an :class:`~diffstir.fitting.Identification` or a ``diffstir-fit`` report.json; the
-selected law is the base. The whole recording is compared (or its first ``window`` seconds), all samples fitted:
+selected law is the base. The whole recording is compared (or its first ``settings.window`` seconds), all samples
+fitted:
 the stops and reversals that tell look-alike effects apart must be inside.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,18 +22,24 @@ import numpy as np
 from ..fitting import Identification, StirProblem, Windows, characteristic_shear_rate
 from ..mpm import SimConfig
 from ..recording import Recording
+from ..report_files import Report
 from .base import BaseFit, base_from_identification, law_from_report, noise_level, simulate_base
-from .candidates import CANDIDATES, Context, accel_reading, check_names
+from .candidates import Context, accel_reading, check_names
 from .compare import CandidateFit, fit_candidates, rank, second_budget
 from .locate import locate
+from .report import markdown, plot_all
+from .settings import DiagnosisSettings
 
 #: Confidence words for the separation ΔBIC between the verdict and the runner-up (Kass and Raftery 1995).
 SURE = ((10.0, "very sure"), (6.0, "fairly sure"))
 
 
 @dataclass
-class Diagnosis:
-    """What :func:`diagnose` found; ``summary()`` is diagnosis.json."""
+class Diagnosis(Report):
+    """What :func:`diagnose` found: ``summary()`` (diagnosis.json, SI units), ``report()`` (diagnosis.md),
+    ``plots(out)`` (residual.png, before_after.png, candidates.png), ``write(out)`` all of them."""
+
+    stem = "diagnosis"
 
     recording: Recording
     problem: StirProblem
@@ -113,6 +119,14 @@ class Diagnosis:
             "seconds": self.seconds,
         }
 
+    def report(self) -> str:
+        """diagnosis.md: the verdict, where the mismatch is, every candidate's score and the refit."""
+        return markdown(self.summary())
+
+    def plots(self, out: Path) -> dict[str, Path]:
+        """residual.png, before_after.png and candidates.png in ``out``."""
+        return plot_all(self, out)
+
 
 def _param(name: str, value: float, unit: str, ci) -> str:
     unit = "" if unit == "1" else f" {unit}"
@@ -124,8 +138,7 @@ def _param(name: str, value: float, unit: str, ci) -> str:
 
 
 def diagnose(recording: Recording, identification: Identification | str | Path, *, config: SimConfig,
-             window: float | None = None, candidates=CANDIDATES, max_iterations: int = 3,
-             rebuild_time: float = 1.0, progress: bool = False, workers: int = 1) -> Diagnosis:
+             settings: DiagnosisSettings | None = None, progress: bool = False, workers: int = 1) -> Diagnosis:
     """Locate the mismatch between ``recording`` and its identification, fit every candidate extension, and name
     the missing physics (see the module docstring and ``compare``).
 
@@ -133,25 +146,22 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
         recording: the recording.
         identification: an ``Identification`` or the path of a ``diffstir-fit`` report.json (or its directory).
         config: the simulator's resolution for the physics candidates (the coarse 2-D slice is the cheap choice).
-        window: compare the first ``window`` seconds [s] (None: the whole recording).
-        candidates: names from ``CANDIDATES``; ``none`` is always added.
-        max_iterations: Gauss-Newton evaluations per physics candidate after its finite-difference Jacobian;
-            candidates whose fit was cut short by it but might still come within reach of the best (``compare``)
-            get as many again, and so does the best when its own fit was cut short.
-        rebuild_time: the thixotropy candidate's starting rebuild time t_r [s] (fitted).
+        settings: the window, candidates, iterations and thixotropy's starting rebuild time (``DiagnosisSettings``;
+            None: its defaults, those of ``diffstir-diagnose``). Candidates whose fit was cut short by
+            ``settings.max_iterations`` but might still come within reach of the best (``compare``) get as many
+            again, and so does the best when its own fit was cut short.
         progress: print one line per fitted candidate.
         workers: processes that fit the physics candidates side by side (``compare.fit_candidates``; 1: in this
             process). The result does not depend on it.
     """
     started = time.perf_counter()
-    names = check_names(candidates)
-    if not (isinstance(rebuild_time, (int, float)) and math.isfinite(rebuild_time) and rebuild_time > 0):
-        raise ValueError(f"diagnose.rebuild_time = {rebuild_time!r}; expected a positive time in s")
+    settings = DiagnosisSettings() if settings is None else settings
+    names = check_names(settings.candidates)
     if isinstance(identification, Identification):
         density = identification.density["value"]
     else:
         law, density, source = law_from_report(identification)
-    windows = Windows.of(recording, window, 0.0)
+    windows = Windows.of(recording, settings.window, 0.0)
     windows.dead_start.require_signal()
     problem = StirProblem(recording, config, density, windows)
     if isinstance(identification, Identification):
@@ -163,7 +173,7 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
                   scale_column=base.scale_column,
                   accel_reading=accel_reading(problem.times, problem.velocity, recording.sensor), noise=noise,
                   shear_rate=characteristic_shear_rate(problem), duration=problem.trajectory.duration,
-                  rebuild_time=float(rebuild_time), law=base.law,
+                  rebuild_time=float(settings.rebuild_time), law=base.law,
                   rod_radius=problem.rig.rod.radius)
     xy = np.stack([recording.x[problem.index], recording.y[problem.index]], axis=-1)
     location = locate(problem.times, xy, problem.velocity, problem.measured, base.predicted, noise,
@@ -174,11 +184,12 @@ def diagnose(recording: Recording, identification: Identification | str | Path, 
             state = fit.note or f"loss {fit.loss:.4g} N, {fit.simulations} simulations, {fit.seconds:.0f} s"
             print(f"diagnose {fit.name}: {state}", flush=True)
 
-    fits = fit_candidates(names, ctx, problem, max_iterations=max_iterations, on_fit=report, workers=workers)
+    fits = fit_candidates(names, ctx, problem, max_iterations=settings.max_iterations, on_fit=report,
+                          workers=workers)
     ranking, verdict, evidence = rank(fits, problem.measured, noise)
     again = second_budget(fits, verdict, evidence)
     if again:
-        fits.update(fit_candidates(again, ctx, problem, max_iterations=max_iterations, on_fit=report,
+        fits.update(fit_candidates(again, ctx, problem, max_iterations=settings.max_iterations, on_fit=report,
                                    workers=workers, resume=fits))
         ranking, verdict, evidence = rank(fits, problem.measured, noise)
     return Diagnosis(recording=recording, problem=problem, base=base, location=location, fits=fits,

@@ -1,6 +1,6 @@
-"""The diagnosis report: ``diagnosis.json`` (SI units), ``diagnosis.md`` and plots (``residual.png``: where the
-mismatch is; ``before_after.png``: measured versus simulated before and after modelling the effect;
-``candidates.png``: each candidate's score)."""
+"""The diagnosis's diagnosis.md and plots (``Diagnosis.report``, ``Diagnosis.plots``): ``residual.png``, where the
+mismatch is; ``before_after.png``, measured versus simulated before and after modelling the effect;
+``candidates.png``, each candidate's score."""
 
 from __future__ import annotations
 
@@ -9,18 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from ..plots import pyplot, save_figure
-from ..report_files import format_param, write_summary
-from .pipeline import Diagnosis
+from ..report_files import format_param
 
 PHASE_COLOURS = {"start-up": "tab:green", "speed change": "tab:orange", "reversal": "tab:purple", "stop": "0.75"}
-
-
-def write_diagnosis(diag: Diagnosis, out: str | Path) -> dict[str, Path]:
-    """Write diagnosis.json, diagnosis.md, residual.png, before_after.png and candidates.png into ``out``."""
-    summary = diag.summary()
-    paths = write_summary(out, "diagnosis", summary, markdown(summary))
-    paths.update(plot_all(diag, Path(out)))
-    return paths
 
 
 def markdown(summary: dict) -> str:
@@ -68,8 +59,8 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_all(diag: Diagnosis, out: Path) -> dict[str, Path]:
-    """residual.png, before_after.png and candidates.png."""
+def plot_all(diag, out: Path) -> dict[str, Path]:
+    """residual.png, before_after.png and candidates.png of the ``Diagnosis`` ``diag`` in ``out``."""
     plt = pyplot()
     t, measured = diag.problem.times, diag.problem.measured
     loc, none, refit = diag.location, diag.fits["none"], diag.refit

@@ -1,4 +1,4 @@
-"""The identification report: ``report.json`` (machine-readable, SI units), ``report.md`` and plots."""
+"""The identification's report.md and plots (``Identification.report``, ``Identification.plots``)."""
 
 from __future__ import annotations
 
@@ -6,21 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting import Identification, log_viscosity_interval
 from ..plots import pyplot, save_figure, viscosity_band
-from ..report_files import format_bound, format_param, write_summary
-
-
-def write_report(result: Identification, out: str | Path) -> dict[str, Path]:
-    """Write report.json, report.md, forces.png, flow_curves.png and losses.png into ``out``; return the paths."""
-    summary = result.summary()
-    paths = write_summary(out, "report", summary, markdown(summary))
-    paths.update(plot_all(result, Path(out)))
-    return paths
+from ..report_files import format_bound, format_param
+from .uncertainty import log_viscosity_interval
 
 
 def markdown(summary: dict) -> str:
-    """A short human-readable report of ``summary`` (see :meth:`Identification.summary`)."""
+    """report.md of an identification's ``summary`` (``Identification.summary``)."""
     sel = summary["selected"]
     av = summary["apparent_viscosity"]
     d = summary["density"]
@@ -103,8 +95,9 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_all(result: Identification, out: Path) -> dict[str, Path]:
-    """Measured versus simulated readings per law, flow curves with 95 % bands, and loss curves."""
+def plot_all(result, out: Path) -> dict[str, Path]:
+    """forces.png (measured versus simulated readings per law), flow_curves.png (each law's flow curve with its
+    95 % band) and losses.png (each fit's loss per simulation) of the ``Identification`` ``result`` in ``out``."""
     plt = pyplot()
     problem = result.problem
     paths = {}

@@ -1,25 +1,49 @@
-"""The result of identifying a recording: every law's fit, its uncertainty, the selection; ``summary()`` is the
-report's JSON."""
+"""The result of identifying a recording: every law's fit, its uncertainty, the selection; a ``Report`` (its
+JSON ``summary()``, markdown ``report()`` and plots, ``fitting.report``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from ..recording import Recording
-from ..report_files import interval_summary
+from ..report_files import Report, interval_summary
 from ..slice_correction import MOVING_SHARE
 from .family import law_family
+from .models import FitModel
 from .nuisance import UNITS
 from .optimise import FitResult
 from .problem import StirProblem
+from .report import markdown, plot_all
 from .uncertainty import Uncertainty, log_viscosity_interval
 
 
+def parameter_summary(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty) -> dict:
+    """A fitted parameter set as a report states it, SI by name: ``params`` (values), ``units``,
+    ``standard_error`` (the delta method's, value × σ_θ for a log-scaled parameter, σ_θ for an index), ``ci95``
+    ([lower, upper], an open end null), ``identifiable`` and ``at_bound``; a parameter the recording does not
+    determine has null standard error and interval, whatever numbers the covariance holds. ``correlations``: the
+    correlation coefficients of the identifiable parameters' θ (log values of log-scaled ones), by pair, [1]."""
+    values = model.si_of_theta(theta)
+    se_theta = np.sqrt(np.diag(uncertainty.covariance))
+    identifiable = uncertainty.identifiable
+    standard_error = {name: (float(se_theta[j] * (values[j] if scale == "log" else 1.0))
+                             if identifiable[name] else None)
+                      for j, (name, scale) in enumerate(zip(model.names, model.scales))}
+    seen = [j for j, name in enumerate(model.names) if identifiable[name]]
+    correlations = {name: {model.names[i]: float(uncertainty.covariance[j, i] / (se_theta[j] * se_theta[i]))
+                           for i in seen if i != j} for j, name in ((j, model.names[j]) for j in seen)}
+    return {"params": model.params_si(), "units": dict(model.units), "standard_error": standard_error,
+            "ci95": interval_summary(uncertainty.ci95, identifiable), "identifiable": dict(identifiable),
+            "at_bound": dict(uncertainty.at_bound), "correlations": correlations}
+
+
 @dataclass
-class Identification:
-    """Everything :func:`identify` found; ``summary()`` is the JSON report."""
+class Identification(Report):
+    """Everything :func:`identify` found: ``summary()`` (report.json), ``report()`` (report.md), ``plots(out)``
+    (forces.png, flow_curves.png, losses.png), ``write(out)`` all of them."""
 
     recording: Recording
     problem: StirProblem
@@ -54,9 +78,7 @@ class Identification:
         for name, fit in self.fits.items():
             unc = self.uncertainty[name]
             laws[name] = {
-                "params": fit.model.params_si(), "units": fit.model.units,
-                "ci95": interval_summary(unc.ci95, unc.identifiable),
-                "identifiable": unc.identifiable, "at_bound": unc.at_bound,
+                **parameter_summary(fit.model, fit.theta, unc),
                 "loss": fit.loss, "holdout_loss": fit.holdout_loss,
                 "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
                 "effective_samples": unc.effective_samples,
@@ -90,6 +112,14 @@ class Identification:
                            "inertial_force_error": self.inertial_error},
             "seconds": self.seconds,
         }
+
+    def report(self) -> str:
+        """report.md: the selection, the apparent viscosity and every law's parameters with their intervals."""
+        return markdown(self.summary())
+
+    def plots(self, out: Path) -> dict[str, Path]:
+        """forces.png, flow_curves.png and losses.png in ``out``."""
+        return plot_all(self, out)
 
     def family(self, name: str) -> dict | None:
         """How model ``name`` behaves over the probed shear rates (``family.law_family``); None when the stir

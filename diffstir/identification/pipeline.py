@@ -1,18 +1,18 @@
 """Identify a fluid from a recording: density, every model fitted, uncertainty, the selected law.
 
-    result = identify(load_recording("diffstir/data/examples/carreau_example"), config=SimConfig(dim=2),
-                      checkpoint="out/checkpoint.json")
-    result.summary()["selected"]
+    result = identify(load_recording("diffstir/data/examples/carreau_example"), config=FINE_STAGE,
+                      coarse=COARSE_STAGE, checkpoint="out/checkpoint.json")
+    result.write("out/")          # report.json, report.md, plots
 
 A ladder of Newtonian simulations gives the first viscosity and the stir's effective shear rate (``initial``). The
 Newtonian law is fitted first; every other model starts from its fit, and the fits run side by side in ``workers``
-processes as soon as their inputs are known (``stages``). An interrupted run resumes from ``checkpoint``: finished
-fits are not repeated and a fit under way restarts from its last iterate.
+processes as soon as their inputs are known (``stages``, ``FitRun``). Each fit's intervals (``quantify``) and the
+selection among the laws (``select_law``) follow. An interrupted run resumes from ``checkpoint``
+(``checkpoint.Checkpoint``): finished fits are not repeated and a fit under way restarts from its last iterate.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from functools import partial
@@ -21,19 +21,16 @@ from pathlib import Path
 import numpy as np
 
 from ..density import density_estimate
-from ..errors import OutputError
-from ..fitting import (LADDER_VISCOSITIES, MAGNITUDE_STEPS, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, FitModel, FitResult,
-                       FitSettings, Identification, MagnitudeJob, Progress, SensorNuisance, StirProblem,
+from ..fitting import (LADDER_VISCOSITIES, MAGNITUDE_STEPS, SHEAR_RATE_PROBES, FitModel, FitResult,
+                       FitSettings, Identification, MagnitudeJob, Progress, SensorNuisance, StirProblem, Uncertainty,
                        ViscosityLadder, Windows, bic, effective_shear_rate, fit_simulations, force_error, laplace,
                        mean_readings_on, mean_stirring_speed, noise_scale, select)
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..parallel import Workers
 from ..recording import Recording
-from ..recording.digest import recording_digest
-from ..report_files import write_text_atomically
 from ..rheology import LAWS
-from ..slice_correction import slice_correction_table
+from .checkpoint import Checkpoint, fingerprint, recording_label
 from .stages import SECANT_STEPS, Plan, Stage
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
@@ -68,139 +65,167 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         overwrite: start afresh, replacing a checkpoint of another recording or of other settings.
     """
     settings = FitSettings() if fit is None else fit
-    unknown = sorted(set(models) - set(LAWS))
-    if unknown:  # before minutes of fitting, not when their turn comes
-        raise ValueError(f"model = {unknown}: unknown laws; choose from {sorted(LAWS)} (the corotated baseline is "
-                         "fitted with baseline=true)")
+    names = model_names(models, baseline)
     started = time.perf_counter()
     density_report = density_estimate(recording, density)
     windows = Windows.of(recording, settings.window, settings.holdout_fraction)
     windows.dead_start.require_signal()
     problem = StirProblem(recording, config, density_report["value"], windows, corrected=settings.slice_correction)
-    names = ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
     sensor = SensorNuisance(tuple(settings.sensor_nuisance))
-    fingerprint = {"recording": recording_digest(recording), "sensor_nuisance": list(sensor.fitted),
-                   "models": names, "window": settings.window, "holdout_fraction": settings.holdout_fraction,
-                   "optimizer": settings.optimizer, "max_iterations": settings.max_iterations,
-                   **config.force_settings(), "density": density_report["value"],
-                   "slice_correction": (slice_correction_table()["coefficients"]
-                                        if config.dim == 2 and settings.slice_correction else None),
-                   "shear_rate_probes": PROBE_INDEX_STEP,
-                   "coarse": (None if coarse is None
-                              else {**coarse.force_settings(), "fine_iterations": settings.fine_iterations})}
-    state = _load_checkpoint(checkpoint, fingerprint, recording_label(recording), overwrite)
-
-    def save() -> None:
-        if checkpoint is not None:
-            Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
-            write_text_atomically(checkpoint, json.dumps(state))
-
-    def on_event(event: tuple) -> None:
-        """A job's event (``jobs``): progress and TensorBoard, and its last iterate into the checkpoint."""
-        kind, stage, name, *data = event
-        if kind == "evaluation":
-            count, loss = data
-            if name.startswith("probe") or name == "magnitude":
-                tracker.evaluation("start" if name.startswith("probe") else name)
-            else:
-                tracker.evaluation(f"{stage}/{name}", name.split("/")[0], loss)
-        elif kind == "iteration":
-            iteration, loss, theta, params = data
-            state["running"].setdefault(stage, {})[name] = theta
-            tracker.iteration(f"{stage}/{name}", iteration, loss, params)
-            save()
-
-    def start_estimates(stage: Stage, pool: Workers) -> None:
-        """The Newtonian ladder, its estimate (the fit's start, the rectifier's input) and γ̇_eff, once."""
-        stage_problem = stage.problem
-        evaluate = partial(mean_readings_on, pool, stage.name, stage_problem)
-        if "ladder" not in state:
-            ladder = ViscosityLadder.simulate(stage_problem, evaluate=evaluate)
-            eta = ladder.estimate(stage_problem)
-            state["ladder"] = {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs),
-                               "estimate": eta, "resolves": ladder.resolves(stage_problem.mean_reading()),
-                               **stage_problem.config.numerics()}
-            save()
-        if "effective_shear_rate" not in state:
-            state["effective_shear_rate"] = effective_shear_rate(stage_problem, state["ladder"]["estimate"],
-                                                                 evaluate=evaluate)
-            save()
-
-    def stage_dt(stage: Stage, eta: float) -> float:
-        """The stage's time step for the corotated baseline [s]: that of a Newtonian fluid of viscosity ``eta``
-        [Pa·s], computed once per stage."""
-        if stage.name not in state["dt"]:
-            state["dt"][stage.name] = stage.problem.simulator(FitModel.named("newtonian", eta=eta).material
-                                                              ).time_step(stage.problem.trajectory)
-        return state["dt"][stage.name]
-
-    state.setdefault("dt", {})
+    saved = Checkpoint.open(checkpoint, fingerprint(problem, names, settings, sensor, coarse),
+                            recording_label(recording), overwrite)
     if coarse is None:
         stages = (Stage("fit", problem, settings.max_iterations),)
     else:
         stages = (Stage("coarse", problem.with_config(coarse), settings.max_iterations),
                   Stage("fine", problem, settings.fine_iterations))
-    tracker = Progress(_expected_simulations(stages, names, state, size_estimate), bar=progress, log_dir=log_dir)
-    with Workers(workers, on_event) as pool:
-        start_estimates(stages[0], pool)
-        tracker.finished("start")
-        plan = Plan(stages, names, ladder_estimate=state["ladder"]["estimate"],
-                    shear_rate=state["effective_shear_rate"], optimizer=settings.optimizer, sensor=sensor,
-                    stage_dt=stage_dt, done=state["done"], running=state["running"])
-        magnitude_pending = False
-
-        def submit_ready() -> None:
-            """The fits whose inputs are known, and the magnitude estimate once the last Newtonian fit is."""
-            nonlocal magnitude_pending
-            for ready in plan.ready():
-                tracker.expect(f"{ready.stage}/{ready.key}", fit_simulations(ready.model.size, ready.budget,
-                                                                             ready.jacobian is not None),
-                               replaces=f"{ready.stage}/{ready.model.name}")
-                pool.submit(ready)
-            newtonian = plan.fits[stages[-1].name].get("newtonian")
-            if size_estimate and newtonian is not None and "magnitude" not in state and not magnitude_pending:
-                eta = newtonian.model.params_si()["eta"]
-                error = force_error(settings.model_error, problem.slice_correction(newtonian.model.material))
-                pool.submit(MagnitudeJob(stages[-1].name, "magnitude", problem, eta, error))
-                magnitude_pending = True
-
-        submit_ready()
-        for job, result in pool.completed():
-            if isinstance(job, MagnitudeJob):
-                state["magnitude"] = result.summary()
-                tracker.finished("magnitude")
-            else:
-                plan.finish(job, result)
-                tracker.finished(f"{job.stage}/{job.key}")
-            save()
-            submit_ready()
-    fits = plan.final()
-
-    train = problem.train
-    residuals = {name: (fit.predicted - problem.measured)[train] for name, fit in fits.items()}
-    uncertainty = {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
-                                                                        problem.times, fit.sensor, train),
-                                 residuals[name], fit.simulated_readings[train],
-                                 force_error(settings.model_error, problem.slice_correction(fit.model.material)),
-                                 viscous_readings=fit.jacobian[train] @ fit.model.stress_direction(),
-                                 inertial_error=settings.inertial_error)
-                   for name, fit in fits.items()}
-    # one sample count for every model, or BIC would compare likelihoods of different data: that of the
-    # best-fitting model, whose residuals are the closest to the noise
-    best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
-    n_effective = uncertainty[best].effective_samples
-    bics = {name: bic(r, fits[name].model.size + sensor.size, n_effective) for name, r in residuals.items()}
-    laws = [n for n in fits if n != "corotated"]
-    chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
-                    {n: fits[n].holdout_loss for n in laws}, settings.selection)
-    chosen["bic"] = bics
-    tracker.close(f"selected {chosen['selected']}")
+    tracker = Progress(_expected_simulations(stages, names, saved.state, size_estimate), bar=progress,
+                       log_dir=log_dir)
+    fits = FitRun(stages, names, settings, sensor, saved, tracker, size_estimate).fits(workers)
+    uncertainty = quantify(problem, fits, sensor, settings)
+    selection = select_law(problem, fits, uncertainty, sensor, settings.selection)
+    tracker.close(f"selected {selection['selected']}")
+    state = saved.state
     return Identification(recording=recording, problem=problem, density=density_report, fits=fits,
                           uncertainty=uncertainty, effective_shear_rate=float(state["effective_shear_rate"]),
-                          selection=chosen, resolvable=_resolvable(problem, fits["newtonian"]),
+                          selection=selection, resolvable=_resolvable(problem, fits["newtonian"]),
                           model_error=settings.model_error, inertial_error=settings.inertial_error,
                           seconds=time.perf_counter() - started, preliminary=_preliminary(state["ladder"], problem),
                           magnitude=state.get("magnitude"))
+
+
+def model_names(models, baseline: bool) -> list[str]:
+    """The models an identification fits, in order: the Newtonian law first, the other laws of ``models``, the
+    corotated baseline last when ``baseline``. ValueError for a name that is not a law, before any fitting."""
+    unknown = sorted(set(models) - set(LAWS))
+    if unknown:
+        raise ValueError(f"model = {unknown}: unknown laws; choose from {sorted(LAWS)} (the corotated baseline is "
+                         "fitted with baseline=true)")
+    return ["newtonian"] + [m for m in models if m != "newtonian"] + (["corotated"] if baseline else [])
+
+
+class FitRun:
+    """The fits of an identification, run on ``Workers``: the Newtonian ladder and γ̇_eff on the first stage, then
+    every model on every stage as ``Plan`` hands them out, and the viscosity from the reading's size once the last
+    stage's Newtonian fit is known (``size_estimate``). Every event goes to the progress ``tracker`` and every
+    iterate into the ``checkpoint``, from which an interrupted run resumes."""
+
+    def __init__(self, stages: tuple[Stage, ...], names: list[str], settings: FitSettings, sensor: SensorNuisance,
+                 checkpoint: Checkpoint, tracker: Progress, size_estimate: bool):
+        self.stages, self.names, self.settings, self.sensor = stages, names, settings, sensor
+        self.checkpoint, self.state, self.tracker = checkpoint, checkpoint.state, tracker
+        self.size_estimate, self.magnitude_pending = size_estimate, False
+
+    def fits(self, workers: int) -> dict[str, FitResult]:
+        """Every model's fit on the last stage, by name, run in ``workers`` processes (1: in this one)."""
+        with Workers(workers, self.on_event) as pool:
+            self.start_estimates(pool)
+            self.tracker.finished("start")
+            plan = Plan(self.stages, self.names, ladder_estimate=self.state["ladder"]["estimate"],
+                        shear_rate=self.state["effective_shear_rate"], optimizer=self.settings.optimizer,
+                        sensor=self.sensor, stage_dt=self.stage_dt, done=self.state["done"],
+                        running=self.state["running"])
+            self.submit_ready(plan, pool)
+            for job, result in pool.completed():
+                if isinstance(job, MagnitudeJob):
+                    self.state["magnitude"] = result.summary()
+                    self.tracker.finished("magnitude")
+                else:
+                    plan.finish(job, result)
+                    self.tracker.finished(f"{job.stage}/{job.key}")
+                self.checkpoint.save()
+                self.submit_ready(plan, pool)
+        return plan.final()
+
+    def on_event(self, event: tuple) -> None:
+        """A job's event (``jobs``): progress and TensorBoard, and its last iterate into the checkpoint."""
+        kind, stage, name, *data = event
+        if kind == "evaluation":
+            count, loss = data
+            if name.startswith("probe") or name == "magnitude":
+                self.tracker.evaluation("start" if name.startswith("probe") else name)
+            else:
+                self.tracker.evaluation(f"{stage}/{name}", name.split("/")[0], loss)
+        elif kind == "iteration":
+            iteration, loss, theta, params = data
+            self.state["running"].setdefault(stage, {})[name] = theta
+            self.tracker.iteration(f"{stage}/{name}", iteration, loss, params)
+            self.checkpoint.save()
+
+    def start_estimates(self, pool: Workers) -> None:
+        """The Newtonian ladder, its estimate (the fit's start, the rectifier's input) and γ̇_eff on the first
+        stage, once."""
+        stage = self.stages[0]
+        problem = stage.problem
+        evaluate = partial(mean_readings_on, pool, stage.name, problem)
+        if "ladder" not in self.state:
+            ladder = ViscosityLadder.simulate(problem, evaluate=evaluate)
+            self.state["ladder"] = {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs),
+                                    "estimate": ladder.estimate(problem),
+                                    "resolves": ladder.resolves(problem.mean_reading()),
+                                    **problem.config.numerics()}
+            self.checkpoint.save()
+        if "effective_shear_rate" not in self.state:
+            self.state["effective_shear_rate"] = effective_shear_rate(problem, self.state["ladder"]["estimate"],
+                                                                      evaluate=evaluate)
+            self.checkpoint.save()
+
+    def stage_dt(self, stage: Stage, eta: float) -> float:
+        """The stage's time step for the corotated baseline [s]: that of a Newtonian fluid of viscosity ``eta``
+        [Pa·s], computed once per stage."""
+        if stage.name not in self.state["dt"]:
+            material = FitModel.named("newtonian", eta=eta).material
+            self.state["dt"][stage.name] = stage.problem.simulator(material).time_step(stage.problem.trajectory)
+        return self.state["dt"][stage.name]
+
+    def submit_ready(self, plan: Plan, pool: Workers) -> None:
+        """Hand out the fits whose inputs are known, and the magnitude estimate once the last stage's Newtonian
+        fit is."""
+        for ready in plan.ready():
+            self.tracker.expect(f"{ready.stage}/{ready.key}", fit_simulations(ready.model.size, ready.budget,
+                                                                              ready.jacobian is not None),
+                                replaces=f"{ready.stage}/{ready.model.name}")
+            pool.submit(ready)
+        last = self.stages[-1]
+        newtonian = plan.fits[last.name].get("newtonian")
+        if self.size_estimate and newtonian is not None and "magnitude" not in self.state \
+                and not self.magnitude_pending:
+            eta = newtonian.model.params_si()["eta"]
+            error = force_error(self.settings.model_error, last.problem.slice_correction(newtonian.model.material))
+            pool.submit(MagnitudeJob(last.name, "magnitude", last.problem, eta, error))
+            self.magnitude_pending = True
+
+
+def quantify(problem: StirProblem, fits: dict[str, FitResult], sensor: SensorNuisance,
+             settings: FitSettings) -> dict[str, Uncertainty]:
+    """Each fit's intervals (``fitting.laplace``) on ``problem``'s fitted samples: its Jacobian with the sensor's
+    nuisances profiled out, the simulator's force error (``settings.model_error`` and the slice correction's) and
+    the inertial part's (``settings.inertial_error``)."""
+    train = problem.train
+    return {name: laplace(fit.model, fit.theta, sensor.projected(fit.jacobian, fit.simulated_readings,
+                                                                 problem.times, fit.sensor, train),
+                          (fit.predicted - problem.measured)[train], fit.simulated_readings[train],
+                          force_error(settings.model_error, problem.slice_correction(fit.model.material)),
+                          viscous_readings=fit.jacobian[train] @ fit.model.stress_direction(),
+                          inertial_error=settings.inertial_error)
+            for name, fit in fits.items()}
+
+
+def select_law(problem: StirProblem, fits: dict[str, FitResult], uncertainty: dict[str, Uncertainty],
+               sensor: SensorNuisance, criterion: str) -> dict:
+    """The selection among the laws (the baseline left out) by ``criterion`` (``fitting.select``), with every
+    model's BIC under ``"bic"``. One sample count serves every model, or BIC would compare likelihoods of
+    different data: the effective samples of the best-fitting model, whose residuals are the closest to the
+    noise."""
+    residuals = {name: (fit.predicted - problem.measured)[problem.train] for name, fit in fits.items()}
+    best = min(residuals, key=lambda n: float(residuals[n] @ residuals[n]))
+    n_effective = uncertainty[best].effective_samples
+    bics = {name: bic(r, fits[name].model.size + sensor.size, n_effective) for name, r in residuals.items()}
+    laws = [n for n, f in fits.items() if not f.model.is_baseline]
+    chosen = select({n: fits[n].loss for n in laws}, {n: bics[n] for n in laws},
+                    {n: fits[n].holdout_loss for n in laws}, criterion)
+    chosen["bic"] = bics
+    return chosen
 
 
 def _preliminary(ladder: dict, problem: StirProblem) -> dict:
@@ -249,33 +274,3 @@ def _expected_simulations(stages: tuple[Stage, ...], names: list[str], state: di
     if size_estimate and "magnitude" not in state:
         expected["magnitude"] = MAGNITUDE_STEPS + 1
     return expected
-
-
-def recording_label(recording: Recording) -> str:
-    """How a checkpoint names its recording: its directory (or name)."""
-    return str(recording.path) if recording.path else (recording.name or "(unnamed)")
-
-
-def _load_checkpoint(path: str | Path | None, settings: dict, label: str, overwrite: bool) -> dict:
-    """The state saved in the checkpoint ``path`` when it holds a fit of the same recording (``settings["recording"]``,
-    its digest) with the same ``settings``; a fresh state when there is none or with ``overwrite``. Otherwise an
-    ``OutputError`` in one line."""
-    fresh = {"settings": settings, "recording": label, "done": {}, "running": {}}
-    if path is None or overwrite or not Path(path).exists():
-        return fresh
-    try:
-        state = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise OutputError(f"{path}: the checkpoint is not valid JSON ({exc}); use another out= or "
-                          "overwrite=true") from None
-    saved = state.get("settings", {}) if isinstance(state, dict) else {}
-    if saved.get("recording") != settings["recording"]:
-        digest = saved.get("recording") or "none"
-        raise OutputError(f"{path} holds a fit of recording {state.get('recording', '(unknown)')} (sha256 "
-                          f"{digest[:12]}…), not of {label} (sha256 {settings['recording'][:12]}…); use another "
-                          "out= or overwrite=true")
-    changed = sorted(k for k in settings if saved.get(k) != settings[k])
-    if changed:
-        raise OutputError(f"{path}: the checkpoint was written with other settings ({', '.join(changed)}); use "
-                          "another out= or overwrite=true")
-    return state

@@ -2,9 +2,8 @@
 compares with the Lederer-Roegiers blending rule (``rheology.blending``; the paper's Fig. 6). See docs/mixing.md.
 """
 
-from .analysis import Mixing, analyse_mixing, write_mixing_report
+from .analysis import Mixing, analyse_mixing
 from .settings import MixingSettings
 from .track import Approach, fit_approach, time_windows, track_viscosity
 
-__all__ = ["Approach", "Mixing", "MixingSettings", "analyse_mixing", "fit_approach", "time_windows", "track_viscosity",
-           "write_mixing_report"]
+__all__ = ["Approach", "Mixing", "MixingSettings", "analyse_mixing", "fit_approach", "time_windows", "track_viscosity"]

@@ -16,17 +16,18 @@ import numpy as np
 from ..density import combined_density
 from ..fitting import ViscosityPoint
 from ..mpm import SimConfig
-from ..plots import pyplot, save_figure
 from ..recording import Recording
-from ..report_files import write_summary
+from ..report_files import Report
 from ..rheology.blending import blend_range, implied_alpha
+from .report import markdown, plot_all
 from .settings import MixingSettings
 from .track import Approach, fit_approach, time_windows, track_viscosity
 
 
 @dataclass
-class Mixing:
-    """What :func:`analyse_mixing` found; ``summary()`` is the JSON report (SI units)."""
+class Mixing(Report):
+    """What :func:`analyse_mixing` found: ``summary()`` (report.json, SI units), ``report()`` (report.md),
+    ``plots(out)`` (time_course.png), ``write(out)`` all of them."""
 
     density: dict
     points: list[ViscosityPoint]
@@ -61,6 +62,14 @@ class Mixing:
             "units": {"time": "s", "viscosity": "Pa s", "homogeneity_time": "s"}},
             "density": self.density, "seconds": self.seconds}
 
+    def report(self) -> str:
+        """report.md: the blend's viscosity, the time to homogeneity, the Lederer-Roegiers range, the course."""
+        return markdown(self.summary())
+
+    def plots(self, out: Path) -> dict[str, Path]:
+        """time_course.png in ``out``."""
+        return plot_all(self, out)
+
 
 def analyse_mixing(recording: Recording, *, config: SimConfig, settings: MixingSettings, density: float | None = None,
                    progress: bool = False) -> Mixing:
@@ -80,31 +89,3 @@ def analyse_mixing(recording: Recording, *, config: SimConfig, settings: MixingS
     approach = fit_approach(times, [p.viscosity for p in points], [p.log_std for p in points],
                             systematic=points[-1].model_log_std)
     return Mixing(rho, points, approach, (eta1, eta2), float(settings.fraction), time.perf_counter() - started)
-
-
-def write_mixing_report(result: Mixing, out) -> dict:
-    """Write report.json and time_course.png (η(t) with its 95 % band, the fitted approach, the time to
-    homogeneity and the Lederer-Roegiers range) into ``out``; return the paths."""
-    plt = pyplot()
-    summary = result.summary()
-    paths = write_summary(out, "report", summary)
-    paths["time_course"] = Path(out) / "time_course.png"
-    t = result.times
-    eta = np.array([p.viscosity for p in result.points])
-    lo, hi = np.array([p.ci95 for p in result.points]).T
-    low, high = summary["mixing"]["lederer_roegiers"]["range"]
-    fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
-    ax.axhspan(low, high, color="tab:green", alpha=0.12, label="Lederer-Roegiers, α ∈ [0, 1]")
-    ax.fill_between(t, lo, hi, color="tab:blue", alpha=0.2, label="95 % band")
-    ax.plot(t, eta, "o", color="tab:blue", label="apparent viscosity per window")
-    dense = np.linspace(t[0], t[-1], 200)
-    ax.plot(dense, result.approach.curve(dense), "k-", lw=1, label="exponential approach")
-    ax.axvline(result.approach.homogeneity_time, color="k", ls=":", lw=0.8, label="homogeneous")
-    if result.approach.homogeneity_interval:
-        ax.axvspan(*result.approach.homogeneity_interval, color="k", alpha=0.08, label="its 95 % interval")
-    ax.set_yscale("log")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("apparent viscosity [Pa·s]")
-    ax.legend(fontsize=7)
-    save_figure(fig, paths["time_course"])
-    return paths
