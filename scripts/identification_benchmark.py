@@ -59,8 +59,11 @@ def sim(path: str):
     return instantiate(OmegaConf.load(CONF / path))
 
 
-def sensor_preset(name: str) -> SensorModel:
-    return SensorModel(**yaml.safe_load((CONF / "lab" / "sensor" / f"{name}.yaml").read_text()))
+def sensor_preset(name: str, stated: bool = True) -> SensorModel:
+    """The sensor preset ``conf/lab/sensor/<name>.yaml``; ``stated`` False: its recordings do not state the
+    sensor's response time (``stated_time_constant``), which the fit then leaves out."""
+    sensor = SensorModel(**yaml.safe_load((CONF / "lab" / "sensor" / f"{name}.yaml").read_text()))
+    return sensor if stated else replace(sensor, stated_time_constant=None)
 
 
 #: fluids beside the presets: classes the presets lack at this stir's shear rates (the paper's jam thins over
@@ -104,7 +107,7 @@ def newtonian_part(args) -> list[dict]:
     truth_config, fine, coarse = sim("lab/sim/truth2d.yaml"), sim("sim/slice2d.yaml"), sim("sim/coarse2d.yaml")
     stir = [{"speed": args.newtonian_speed, "duration": args.newtonian_duration}]
     trajectory = stirring_programme(stir, radius=RADIUS, ramp_time=RAMP)
-    sensor, rows, done = sensor_preset(args.sensor), [], finished(args.out)
+    sensor, rows, done = sensor_preset(args.sensor, not args.unstated_response), [], finished(args.out)
     print("| η true [Pa·s] | ρ true | ρ [95 % CI] | η fitted [95 % CI] | error | CI holds truth | resolvable | "
           "η from size [95 % CI] | error | CI holds truth | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -145,7 +148,7 @@ def laws_part(args) -> list[dict]:
     coarse = sim("sim/coarse2d.yaml")
     truth_config = replace(coarse, dx=args.law_truth_dx)
     trajectory = stirring_programme(LAW_PROGRAMME, radius=RADIUS, ramp_time=RAMP)
-    sensor, rows, done = sensor_preset(args.sensor), [], finished(args.out)
+    sensor, rows, done = sensor_preset(args.sensor, not args.unstated_response), [], finished(args.out)
     for i, name in enumerate(args.fluids):
         if any(r["fluid"] == name for r in done):
             rows.append(next(r for r in done if r["fluid"] == name))
@@ -249,6 +252,8 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=6, help="Gauss-Newton iterations per law")
     parser.add_argument("--fine-iterations", type=int, default=2, help="Broyden iterations on the fine grid")
     parser.add_argument("--sensor", default="paper", help="preset in conf/lab/sensor")
+    parser.add_argument("--unstated-response", action="store_true",
+                        help="recordings that do not state the sensor's response time: the fit leaves it out")
     parser.add_argument("--sensor-nuisance", type=lambda text: tuple(n for n in text.split(",") if n),
                         default=(), help="sensor parameters profiled out of each fit: lag, offset (default: none)")
     parser.add_argument("--model-error", type=float, default=None,
