@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from pathlib import Path
 from typing import ClassVar
@@ -12,7 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 
-class Report:
+class Report(ABC):
     """A result that reports itself, the same way for every analysis: ``summary()`` is its JSON (SI units),
     ``report()`` its markdown, ``plots(out)`` writes its figures, ``write(out)`` all three, and a notebook shows
     ``report()`` (``_repr_html_``). A subclass defines ``summary``, ``report`` and, where it draws, ``plots``;
@@ -20,11 +21,13 @@ class Report:
 
     stem: ClassVar[str] = "report"
 
+    @abstractmethod
     def summary(self) -> dict:
-        raise NotImplementedError
+        """The result as JSON-serialisable data, SI units."""
 
+    @abstractmethod
     def report(self) -> str:
-        raise NotImplementedError
+        """The result as markdown."""
 
     def plots(self, out: Path) -> dict[str, Path]:
         """Write the result's figures into ``out``; return their paths by name (none by default)."""

@@ -153,7 +153,7 @@ class _BroydenJacobian:
 
     A coarser simulation's Jacobian ``initial`` comes with that simulation's readings ``initial_readings`` at the
     same θ. Its forces differ from this one's mostly by a factor (a coarse grid under-resolves the viscous layers
-    around the rod: 40 % less drag than the fine grid at 10 Pa·s), and a Jacobian too small by that factor sends
+    around the rod and reads less drag than the fine grid), and a Jacobian too small by that factor sends
     the first step too far, so the first matrix is s J_coarse with s = f·g / g·g, the least-squares ratio of this
     simulation's readings f to the coarse ones g (output space mapping; kept unscaled unless s > 0)."""
 

@@ -23,9 +23,9 @@ import numpy as np
 from ..fitting import FitJob, FitModel, FitResult, SensorNuisance, StirProblem, initial_models, newtonian_embedding
 
 #: Fine-stage evaluations a one-parameter model (the Newtonian law, the corotated baseline) gets beyond the
-#: stage's iterations: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss
-#: (d ln F / d ln η ≈ 0.3 at Re 25, where one step from the coarse optimum ran to the trust region's edge: a
-#: 0.2 Pa·s lab fluid read +32 % after one fine step and −2 % after three, docs/accuracy.md).
+#: stage's iterations: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss (a
+#: small d ln F / d ln η at Re ≈ 25 and above), where one step from the coarse optimum can run to the trust
+#: region's edge.
 SECANT_STEPS = 2
 SUBSTEP_COST = 0.05  # a shear-stress substep over a whole step: 0.05 of a projection step, about 0.15 of a
 #                      compressible one on the 2-D slice (scripts/viscous_substeps_study.py, docs/validation.md)
