@@ -19,6 +19,7 @@ from diffstir.diagnosis.compare import (ANCHOR_RANGE, DISTINCT, EVIDENCE, EXPLAI
                                         SOUND_SPEED_TOLERANCE, ScaleReadings, fit_physics, fit_sensor, rank,
                                         reachable_rss, refrozen, screened_start, second_budget)
 from diffstir.diagnosis.locate import harmonic_shares, kinematics, phases, reading_lag
+from diffstir.fitting import Z95
 from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.lab import first_order_lag, stirring_programme
 from diffstir.mpm import SimConfig
@@ -335,7 +336,12 @@ def test_diagnose_names_a_concealed_sensor_lag_and_reports_it(tmp_path):
     report = json.loads(paths["json"].read_text())
     top = report["ranking"][0]
     assert report["verdict"] == "sensor_lag" and top["effect"] == "sensor_lag"
-    assert {"effect", "score", "params", "loss_before", "loss_after"} <= set(top)
+    assert {"effect", "score", "params", "standard_error", "ci95", "correlations", "loss_before",
+            "loss_after"} <= set(top)
+    # the lag's standard error is the one its interval was built from: ln(hi/lo) = 2 Z95 SE/τ for a log-scaled τ
+    assert top["standard_error"]["lag_time"] == pytest.approx(
+        top["params"]["lag_time"] * math.log(hi / lo) / (2 * Z95), rel=1e-6)
+    assert all((top["standard_error"][k] is None) == (top["ci95"][k] is None) for k in top["params"])
     assert top["loss_after"] < 0.5 * top["loss_before"]
     assert "sensor response" in report["sentence"]
     assert all(paths[k].stat().st_size > 0 for k in ("md", "residual", "before_after", "candidates"))

@@ -48,9 +48,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
-from ..fitting import Readings, bic, bic_of_rss, effective_samples, fit_model, laplace
+from ..fitting import Readings, bic, bic_of_rss, effective_samples, fit_model, laplace, parameter_uncertainty
 from ..parallel import Workers
-from ..report_files import interval_summary
 from .base import residual_test, simulated_reading
 from .candidates import (PHYSICS_CANDIDATES, SCALE, SENSOR_CANDIDATES, YIELD_SUMMARY, CachedReplay, Context,
                          Parametrisation, PhysicsModel, SensorCandidate, scaled_law, yield_model)
@@ -80,9 +79,9 @@ class CandidateFit:
     Attributes:
         name, kind: the candidate (``sensor``, ``physics``) .
         summary: what it models, in words.
-        params, units, ci95: fitted values (SI), units, 95 % intervals (null for a parameter the recording does
-            not determine, ``report_files.interval_summary``); identifiable: whether the recording
-            determines each parameter (``fitting.uncertainty``).
+        params, units, standard_error, ci95: fitted values (SI), units, standard errors and 95 % intervals (null
+            for a parameter the recording does not determine, ``fitting.parameter_uncertainty``); identifiable:
+            whether the recording determines each parameter; correlations: of the identifiable parameters' θ.
         law: the fluid's law after the fit (name and SI parameters).
         predicted: readings [N] at the compared samples.
         loss: mean |measured − predicted| [N]; rss: Σ (measured − predicted)² [N²].
@@ -101,8 +100,10 @@ class CandidateFit:
     summary: str
     params: dict = field(default_factory=dict)
     units: dict = field(default_factory=dict)
+    standard_error: dict = field(default_factory=dict)
     ci95: dict = field(default_factory=dict)
     identifiable: dict = field(default_factory=dict)
+    correlations: dict = field(default_factory=dict)
     law: dict = field(default_factory=dict)
     predicted: np.ndarray | None = None
     loss: float = math.nan
@@ -125,8 +126,9 @@ def _law_after(law, values: dict) -> dict:
 
 def _finish(fit: CandidateFit, model, theta: np.ndarray, jacobian: np.ndarray, ctx: Context) -> CandidateFit:
     residual = ctx.measured - fit.predicted
-    unc = laplace(model, theta, jacobian, -residual)  # predicted − measured, as the identification
-    fit.ci95, fit.identifiable = interval_summary(unc.ci95, unc.identifiable), dict(unc.identifiable)
+    known = parameter_uncertainty(model, theta, laplace(model, theta, jacobian, -residual))  # r = predicted − measured
+    fit.standard_error, fit.ci95, fit.identifiable, fit.correlations = (
+        known["standard_error"], known["ci95"], known["identifiable"], known["correlations"])
     fit.loss, fit.rss = float(np.mean(np.abs(residual))), float(residual @ residual)
     fit.size = model.size
     fit.theta, fit.jacobian = np.asarray(theta, dtype=np.float64), jacobian
@@ -379,8 +381,9 @@ def rank(fits: dict[str, CandidateFit], measured: np.ndarray, noise: float) -> t
     order = sorted(fitted, key=lambda k: bics[k])
     none_loss = fitted["none"].loss
     ranking = [{"effect": k, "score": bics[k] - bics["none"], "bic": bics[k], "probability": weights[k] / total,
-                "params": fitted[k].params, "units": fitted[k].units, "ci95": fitted[k].ci95,
-                "identifiable": fitted[k].identifiable, "law": fitted[k].law,
+                "params": fitted[k].params, "units": fitted[k].units, "standard_error": fitted[k].standard_error,
+                "ci95": fitted[k].ci95, "identifiable": fitted[k].identifiable,
+                "correlations": fitted[k].correlations, "law": fitted[k].law,
                 "loss_before": none_loss, "loss_after": fitted[k].loss, "parameters": fitted[k].size,
                 "simulations": fitted[k].simulations, "seconds": fitted[k].seconds, "warning": fitted[k].warning,
                 "converged": fitted[k].converged, "reachable_score": reachable[k] - bics["none"]}

@@ -22,7 +22,7 @@ from .optimise import OPTIMIZERS, FitResult, Readings, fit_model, noise_scale
 from .parameters import MaterialParameters, ParameterSet, ThetaParameters, theta_of, value_of
 from .problem import FitProblem, StirProblem, Windows, rig_from_recording, trajectory_from_recording
 from .progress import Progress, fit_simulations
-from .result import Identification, parameter_summary
+from .result import Identification, parameter_summary, parameter_uncertainty
 from .selection import CRITERIA, bic, bic_of_rss, rank, select
 from .settings import FitSettings
 from .uncertainty import (COARSE_FORCE_ERROR, INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Z95, Uncertainty,
@@ -32,11 +32,12 @@ from .windows import PAUSE_SPEED, SpeedWindow, speed_windows
 __all__ = ["COARSE_FORCE_ERROR", "CRITERIA", "DEFAULT_NUISANCES", "FitJob", "FitModel", "FitProblem", "FitResult",
            "FitSettings", "INERTIAL_FORCE_ERROR", "Identification", "LADDER_VISCOSITIES", "MAGNITUDE_STEPS",
            "MODEL_FORCE_ERROR", "MagnitudeJob", "MaterialParameters", "NO_NUISANCE", "NUISANCES", "OPTIMIZERS",
-           "PAUSE_SPEED", "PROBE_INDEX_STEP", "ParameterSet", "Progress", "ReadingJob", "Readings", "SHEAR_RATE_PROBES",
-           "SensorNuisance", "SpeedWindow", "StirProblem", "ThetaParameters", "UNITS", "Uncertainty", "ViscosityLadder",
-           "ViscosityPoint", "Windows", "WindowsJob", "YIELD_SHARES", "Z95", "bic", "bic_of_rss",
-           "characteristic_shear_rate", "checked_model_error", "effective_samples", "effective_shear_rate", "fit_model",
-           "fit_simulations", "force_error", "initial_model", "initial_models", "lag_response", "laplace", "law_family",
-           "log_viscosity_interval", "mean_readings_on", "mean_stirring_speed", "newtonian_embedding", "noise_scale",
-           "parameter_summary", "rank", "rig_from_recording", "select", "speed_windows", "theta_of",
-           "trajectory_from_recording", "value_of", "window_event", "window_simulations", "window_viscosity"]
+           "PAUSE_SPEED", "PROBE_INDEX_STEP", "ParameterSet", "Progress", "ReadingJob", "Readings",
+           "SHEAR_RATE_PROBES", "SensorNuisance", "SpeedWindow", "StirProblem", "ThetaParameters", "UNITS",
+           "Uncertainty", "ViscosityLadder", "ViscosityPoint", "Windows", "WindowsJob", "YIELD_SHARES", "Z95", "bic",
+           "bic_of_rss", "characteristic_shear_rate", "checked_model_error", "effective_samples",
+           "effective_shear_rate", "fit_model", "fit_simulations", "force_error", "initial_model", "initial_models",
+           "lag_response", "laplace", "law_family", "log_viscosity_interval", "mean_readings_on",
+           "mean_stirring_speed", "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty",
+           "rank", "rig_from_recording", "select", "speed_windows", "theta_of", "trajectory_from_recording",
+           "value_of", "window_event", "window_simulations", "window_viscosity"]

@@ -15,17 +15,18 @@ from .family import law_family
 from .models import FitModel
 from .nuisance import UNITS
 from .optimise import FitResult
+from .parameters import ParameterSet
 from .problem import StirProblem
 from .report import markdown, plot_all
 from .uncertainty import Uncertainty, log_viscosity_interval
 
 
-def parameter_summary(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty) -> dict:
-    """A fitted parameter set as a report states it, SI by name: ``params`` (values), ``units``,
-    ``standard_error`` (the delta method's, value × σ_θ for a log-scaled parameter, σ_θ for an index), ``ci95``
-    ([lower, upper], an open end null), ``identifiable`` and ``at_bound``; a parameter the recording does not
-    determine has null standard error and interval, whatever numbers the covariance holds. ``correlations``: the
-    correlation coefficients of the identifiable parameters' θ (log values of log-scaled ones), by pair, [1]."""
+def parameter_uncertainty(model: ParameterSet, theta: np.ndarray, uncertainty: Uncertainty) -> dict:
+    """How well a fitted parameter set is known, SI by name, as a report states it: ``standard_error`` (the delta
+    method's, value × σ_θ for a log-scaled parameter, σ_θ for an index), ``ci95`` ([lower, upper], an open end
+    null), ``identifiable`` and ``at_bound``; a parameter the recording does not determine has null standard error
+    and interval, whatever numbers the covariance holds. ``correlations``: the correlation coefficients of the
+    identifiable parameters' θ (log values of log-scaled ones), by pair, [1]."""
     values = model.si_of_theta(theta)
     se_theta = np.sqrt(np.diag(uncertainty.covariance))
     identifiable = uncertainty.identifiable
@@ -33,11 +34,17 @@ def parameter_summary(model: FitModel, theta: np.ndarray, uncertainty: Uncertain
                              if identifiable[name] else None)
                       for j, (name, scale) in enumerate(zip(model.names, model.scales))}
     seen = [j for j, name in enumerate(model.names) if identifiable[name]]
-    correlations = {name: {model.names[i]: float(uncertainty.covariance[j, i] / (se_theta[j] * se_theta[i]))
-                           for i in seen if i != j} for j, name in ((j, model.names[j]) for j in seen)}
-    return {"params": model.params_si(), "units": dict(model.units), "standard_error": standard_error,
-            "ci95": interval_summary(uncertainty.ci95, identifiable), "identifiable": dict(identifiable),
-            "at_bound": dict(uncertainty.at_bound), "correlations": correlations}
+    correlations = {model.names[j]: {model.names[i]: float(uncertainty.covariance[j, i] / se_theta[j] / se_theta[i])
+                                     for i in seen if i != j} for j in seen}
+    return {"standard_error": standard_error, "ci95": interval_summary(uncertainty.ci95, identifiable),
+            "identifiable": dict(identifiable), "at_bound": dict(uncertainty.at_bound), "correlations": correlations}
+
+
+def parameter_summary(model: FitModel, theta: np.ndarray, uncertainty: Uncertainty) -> dict:
+    """A fitted model's parameters as a report states them: ``params`` (SI values), ``units`` and
+    ``parameter_uncertainty``'s standard errors, intervals, flags and correlations."""
+    return {"params": model.params_si(), "units": dict(model.units),
+            **parameter_uncertainty(model, theta, uncertainty)}
 
 
 @dataclass
