@@ -4,6 +4,8 @@ without a traceback and exit with status 2."""
 
 from __future__ import annotations
 
+import math
+
 
 class DiffstirError(Exception):
     """An input the user can correct: a recording, a setting, an output folder."""
@@ -15,6 +17,16 @@ class ConfigError(DiffstirError, ValueError):
 
 class OutputError(DiffstirError):
     """An output that would overwrite something recorded or shipped, or belongs to another input."""
+
+
+def is_number(value) -> bool:
+    """Whether ``value`` is a finite int or float (a bool is not a number here)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def is_whole(value, low: int) -> bool:
+    """Whether ``value`` is an int (not a bool) of at least ``low``."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
 
 
 def check_choice(setting: str, value, choices) -> None:

@@ -9,10 +9,9 @@ before any simulation, in one line that names the setting and lists the valid va
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError, check_choice, check_choices
+from ..errors import ConfigError, check_choice, check_choices, is_number, is_whole
 from ..fitting import INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, PAUSE_SPEED, checked_model_error
 from ..rheology import LAWS
 
@@ -60,12 +59,11 @@ class BehaviourSettings:
         self.joint_models = list(self.joint_models)
         for name, low in (("iterations", 1), ("joint_iterations", 1), ("replicates", 1), ("seed", 0)):
             value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
+            if not is_whole(value, low):
                 raise ConfigError(f"behaviour.{name} = {value!r}; expected a whole number of at least {low}")
         for name, unit in (("speed_tolerance", "1"), ("min_window", "s"), ("pause_speed", "m/s")):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                    and value > 0):
+            if not (is_number(value) and value > 0):
                 raise ConfigError(f"behaviour.{name} = {value!r} {unit}; expected a positive number in {unit}")
         check_choices("behaviour.joint_models", self.joint_models, sorted(LAWS))
         check_choice("behaviour.slope_test", self.slope_test, SLOPE_TESTS)

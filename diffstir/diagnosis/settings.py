@@ -9,10 +9,9 @@ simulation: one line that names the setting and lists the valid values.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError, check_choices
+from ..errors import ConfigError, check_choices, is_number, is_whole
 from .candidates import CANDIDATES
 
 #: The shortest comparison window [s].
@@ -42,14 +41,10 @@ class DiagnosisSettings:
         check_choices("diagnosis.candidates", self.candidates, CANDIDATES)
         for name in ("max_iterations", "identify_iterations"):
             value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            if not is_whole(value, 1):
                 raise ConfigError(f"diagnosis.{name} = {value!r}; expected a whole number of at least 1")
-        if not (_number(self.rebuild_time) and self.rebuild_time > 0):
+        if not (is_number(self.rebuild_time) and self.rebuild_time > 0):
             raise ConfigError(f"diagnosis.rebuild_time = {self.rebuild_time!r} s; expected a positive time in s")
-        if self.window is not None and not (_number(self.window) and self.window >= MIN_WINDOW):
+        if self.window is not None and not (is_number(self.window) and self.window >= MIN_WINDOW):
             raise ConfigError(f"diagnosis.window = {self.window!r} s; expected at least {MIN_WINDOW:g} s, or null "
                               "(all of the recording)")
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

@@ -8,10 +8,9 @@ when the settings are built, before any simulation: one line that names the sett
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError, check_choice, check_choices
+from ..errors import ConfigError, check_choice, check_choices, is_number, is_whole
 from .nuisance import NUISANCES
 from .optimise import OPTIMIZERS
 from .selection import CRITERIA
@@ -52,15 +51,15 @@ class FitSettings:
 
     def __post_init__(self) -> None:
         self.sensor_nuisance = list(self.sensor_nuisance)
-        if self.window is not None and not (_number(self.window) and self.window > 0.0):
+        if self.window is not None and not (is_number(self.window) and self.window > 0.0):
             raise ConfigError(f"fit.window = {self.window!r} s; expected a positive duration in s, or null (all of "
                               "the recording)")
-        if not (_number(self.holdout_fraction) and 0.0 <= self.holdout_fraction < 1.0):
+        if not (is_number(self.holdout_fraction) and 0.0 <= self.holdout_fraction < 1.0):
             raise ConfigError(f"fit.holdout_fraction = {self.holdout_fraction!r}; expected a fraction of the window "
                               "in [0, 1)")
         for name, low in (("max_iterations", 1), ("fine_iterations", 0)):
             value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
+            if not is_whole(value, low):
                 raise ConfigError(f"fit.{name} = {value!r}; expected a whole number of at least {low}")
         check_choice("fit.optimizer", self.optimizer, OPTIMIZERS)
         check_choice("fit.selection", self.selection, CRITERIA)
@@ -75,8 +74,3 @@ class FitSettings:
         if self.selection == "holdout" and not self.holdout_fraction:
             raise ConfigError("fit.selection = 'holdout' needs held-out samples; set fit.holdout_fraction > 0 (a "
                               "fraction of the window, 1)")
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from diffstir.errors import ConfigError, check_choice
+from diffstir.errors import ConfigError, check_choice, is_number
 from diffstir.recording.format import SENSOR_MODES
 from diffstir.recording.validate import AXIS_TOLERANCE, MAX_TIME_CONSTANT
 
@@ -56,10 +56,10 @@ class SensorSettings:
             raise ConfigError("sensor.axis = null; sensor.mode = component needs a horizontal unit vector [ax, ay]")
         for name, unit in (("resolution", "N"), ("sample_rate", "Hz"), ("noise", "N")):
             value = getattr(self, name)
-            if value is not None and not (_number(value) and value > 0):
+            if value is not None and not (is_number(value) and value > 0):
                 raise ConfigError(f"sensor.{name} = {value!r} {unit}; expected a positive number in {unit}, or null")
         tau = self.time_constant
-        if tau is not None and not (_number(tau) and 0 <= tau <= MAX_TIME_CONSTANT):
+        if tau is not None and not (is_number(tau) and 0 <= tau <= MAX_TIME_CONSTANT):
             raise ConfigError(f"sensor.time_constant = {tau!r} s; expected a response time in s from 0 to "
                               f"{MAX_TIME_CONSTANT:g} s, or null")
 
@@ -78,7 +78,7 @@ class GripSettings:
 
     def __post_init__(self) -> None:
         low, high = GRIP_FORCE_PERCENT
-        if not (_number(self.force_percent) and low <= self.force_percent <= high):
+        if not (is_number(self.force_percent) and low <= self.force_percent <= high):
             raise ConfigError(f"grip.force_percent = {self.force_percent!r} %; expected {low:g} to {high:g} % of the "
                               "gripper's maximum force")
         _positive("grip.timeout", self.timeout, "s")
@@ -125,7 +125,7 @@ class DensitySettings:
     def __post_init__(self) -> None:
         for name in ("rod_weight", "immersed_reading"):
             value = getattr(self, name)
-            if value is not None and not _number(value):
+            if value is not None and not is_number(value):
                 raise ConfigError(f"density.{name} = {value!r} N; expected a finite force in N, or null")
         for name, unit in (("immersed_depth", "m"), ("rod_cross_section", "m^2")):
             if getattr(self, name) is not None:
@@ -163,15 +163,11 @@ class StirSettings:
         if self.speed is not None:
             _positive("stir.speed", self.speed, "m/s")
         _positive("stir.duration", self.duration, "s")
-        if not (_number(self.ramp_time) and 0 <= self.ramp_time < self.duration):
+        if not (is_number(self.ramp_time) and 0 <= self.ramp_time < self.duration):
             raise ConfigError(f"stir.ramp_time = {self.ramp_time!r} s; expected a time in s from 0 to less than "
                               f"stir.duration = {self.duration} s")
 
 
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _positive(setting: str, value, unit: str) -> None:
-    if not (_number(value) and value > 0):
+    if not (is_number(value) and value > 0):
         raise ConfigError(f"{setting} = {value!r} {unit}; expected a positive number in {unit}")

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from diffstir.density import density_estimate
-from diffstir.errors import ConfigError, check_choices
+from diffstir.errors import ConfigError, check_choices, is_number, is_whole
 from diffstir.fitting import (PROBE_INDEX_STEP, StirProblem, ViscosityLadder, Windows, effective_shear_rate,
                               mean_stirring_speed)
 from diffstir.lab import (
@@ -95,12 +95,12 @@ class PairDesign:
         if not self.programmes or not self.densities:
             raise ConfigError("pairs.design: programmes and densities must both be non-empty")
         for name, value, unit in (("duration", self.duration, "s"), ("window", self.window, "s")):
-            if not (_number(value) and value > 0):
+            if not (is_number(value) and value > 0):
                 raise ConfigError(f"pairs.design.{name} = {value!r} {unit}; expected a positive time in {unit}")
-        if not (_number(self.ramp_time) and self.ramp_time >= 0):
+        if not (is_number(self.ramp_time) and self.ramp_time >= 0):
             raise ConfigError(f"pairs.design.ramp_time = {self.ramp_time!r} s; expected a time >= 0 in s")
         for p in self.programmes:
-            if set(p) != {"radius", "speed"} or not all(_number(p[k]) and p[k] > 0 for k in p):
+            if set(p) != {"radius", "speed"} or not all(is_number(p[k]) and p[k] > 0 for k in p):
                 raise ConfigError(f"pairs.design.programmes: {dict(p)}; expected {{radius: m, speed: m/s}}, both "
                                   "positive")
             period = 2 * math.pi * p["radius"] / p["speed"]
@@ -112,13 +112,13 @@ class PairDesign:
                 raise ConfigError(f"pairs.design.densities: {rho}; expected a liquid's density in kg/m^3")
         for name in ("fluids_per_shard", "sensors_per_fluid"):
             value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            if not is_whole(value, 1):
                 raise ConfigError(f"pairs.design.{name} = {value!r}; expected a whole number of at least 1")
         lo, hi = self.viscosity
         if not 0 < lo < hi:
             raise ConfigError(f"pairs.design.viscosity = {self.viscosity}; expected 0 < low < high in Pa s")
         check_choices("pairs.design.laws", list(self.laws), sorted(LAW_DRAWS))
-        if not self.laws or not all(_number(p) and p >= 0 for p in self.laws.values()) \
+        if not self.laws or not all(is_number(p) and p >= 0 for p in self.laws.values()) \
                 or not sum(self.laws.values()) > 0:
             raise ConfigError(f"pairs.design.laws = {dict(self.laws)}; expected probabilities >= 0 [1] of one law "
                               "or more, not all 0")
@@ -127,7 +127,7 @@ class PairDesign:
             HiddenPhysicsSpec.from_mapping(self.physics)
         except (TypeError, ValueError) as error:
             raise ConfigError(f"pairs.design.physics: {error}") from None
-        if not (_number(self.holdout_fraction) and 0.0 <= self.holdout_fraction < 1.0):
+        if not (is_number(self.holdout_fraction) and 0.0 <= self.holdout_fraction < 1.0):
             raise ConfigError(f"pairs.design.holdout_fraction = {self.holdout_fraction!r}; expected a fraction of "
                               "the window in [0, 1)")
         if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
@@ -466,10 +466,6 @@ def design_from_mapping(cfg: Mapping) -> PairDesign:
     cfg["laws"] = dict(cfg.get("laws") or {"newtonian": 1.0})
     cfg["sensor"] = dict(cfg.get("sensor") or {})
     return PairDesign(**cfg)
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _plain(value):

@@ -9,11 +9,10 @@ are built, before any training or simulation: one line that names the setting an
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from ..errors import ConfigError, check_choice, check_choices
+from ..errors import ConfigError, check_choice, check_choices, is_number, is_whole
 from .model import ACTIVATIONS, INPUT_UNITS
 from .pairs import PairDesign, design_from_mapping
 
@@ -44,7 +43,7 @@ class ModelSettings:
             raise ConfigError(f"model.inputs = {self.inputs}; expected distinct names from "
                               f"{', '.join(INPUT_UNITS)}")
         check_choices("model.inputs", self.inputs, list(INPUT_UNITS))
-        if not all(_whole(width, 1) for width in self.hidden):
+        if not all(is_whole(width, 1) for width in self.hidden):
             raise ConfigError(f"model.hidden = {self.hidden}; expected layer widths, whole numbers of at least 1")
         check_choice("model.activation", self.activation, list(ACTIVATIONS))
         if self.residual and "preliminary_viscosity" not in self.inputs:
@@ -73,10 +72,10 @@ class TrainSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not (_number(self.learning_rate) and self.learning_rate > 0):
+        if not (is_number(self.learning_rate) and self.learning_rate > 0):
             raise ConfigError(f"train.learning_rate = {self.learning_rate!r}; expected a positive step size")
         for name, low in (("epochs", 1), ("batch_size", 1), ("patience", 1), ("seed", 0)):
-            if not _whole(getattr(self, name), low):
+            if not is_whole(getattr(self, name), low):
                 raise ConfigError(f"train.{name} = {getattr(self, name)!r}; expected a whole number of at least "
                                   f"{low}")
 
@@ -98,12 +97,12 @@ class SplitSettings:
     def __post_init__(self) -> None:
         for name in ("val_fraction", "test_fraction"):
             value = getattr(self, name)
-            if not (_number(value) and 0.0 < value < 1.0):
+            if not (is_number(value) and 0.0 < value < 1.0):
                 raise ConfigError(f"split.{name} = {value!r}; expected a fraction of the fluids in (0, 1)")
         if self.val_fraction + self.test_fraction >= 1.0:
             raise ConfigError(f"split.val_fraction + split.test_fraction = {self.val_fraction + self.test_fraction:g};"
                               " expected less than 1, leaving fluids to train on")
-        if not _whole(self.seed, 0):
+        if not is_whole(self.seed, 0):
             raise ConfigError(f"split.seed = {self.seed!r}; expected a whole number of at least 0")
 
 
@@ -149,11 +148,3 @@ class DesignSettings:
     def design(self) -> PairDesign:
         """The checked ``PairDesign``."""
         return design_from_mapping(asdict(self))
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _whole(value, low: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= low
