@@ -10,6 +10,7 @@ import numpy as np
 
 from ..plots import pyplot, save_figure
 from ..report_files import format_bound
+from ..rheology.blending import blend_range
 
 
 def markdown(summary: dict) -> str:
@@ -45,7 +46,7 @@ def plot_all(result, out: Path) -> dict[str, Path]:
     t = result.times
     eta = np.array([p.viscosity for p in result.points])
     lo, hi = np.array([p.ci95 for p in result.points]).T
-    low, high = result.summary()["mixing"]["lederer_roegiers"]["range"]
+    low, high = blend_range(*result.viscosities, result.fraction)
     fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
     ax.axhspan(low, high, color="tab:green", alpha=0.12, label="Lederer-Roegiers, α ∈ [0, 1]")
     ax.fill_between(t, lo, hi, color="tab:blue", alpha=0.2, label="95 % band")
