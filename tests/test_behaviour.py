@@ -6,6 +6,7 @@ import json
 import math
 import re
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ from diffstir.recording import CupGeometry, Recording, RecordingError, RodGeomet
 from diffstir.rheology import FlowCurve, Newtonian
 from diffstir.slice_correction import stir_correction
 
+ROOT = Path(__file__).resolve().parents[1]
 # 1 cm cells, the rod 2.5 across, the sound speed 6 times the fastest stir, the viscosity capped at 5 Pa s, steps of
 # 3.6 ms: a fast stand-in for the pipeline's statistics, the same model for the truth and the fit, with APIC
 # transfers and each particle's own J. On so coarse a grid the default FLIP share and packing relaxation make the
@@ -386,6 +388,29 @@ def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings, capsys):
     assert int(line[1]) >= windows + sum(f.evaluations for f in joint.fits.values())
     # the laws were fitted in two worker processes, as FitJobs on diffstir.parallel.Workers, whose results equal
     # those fitted in one process (test_identify's test_models_fitted_in_parallel_processes_equal_those_fitted_in_one)
+
+
+def test_a_report_with_only_the_index_interval_is_decided_again():
+    """The saved reports of docs/data/behaviour-paste-programme carry n's 95 % interval but no standard error: the
+    index's standard error is the interval's half width over z₉₅, and each report is decided again under every
+    slope test (``scripts/behaviour_benchmark.py --from-reports``)."""
+    from diffstir.behaviour.pipeline import reported_joint_index
+
+    reports = sorted((ROOT / "docs" / "data" / "behaviour-paste-programme").glob("*.json"))
+    assert reports
+    for path in reports:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+        law = summary["joint_fit"]["laws"]["power_law"]
+        assert "standard_error" not in law
+        lo, hi = law["ci95"]["n"]
+        index = reported_joint_index(summary)
+        assert index.value == pytest.approx(law["params"]["n"] - 1.0)
+        assert index.std == pytest.approx((hi - lo) / (2 * Z95))
+        for test in ("points", "joint_index", "combined"):
+            assert reclassify(summary, slope_test=test, replicates=50).label in CLASSES
+    unidentified = json.loads(reports[0].read_text(encoding="utf-8"))
+    unidentified["joint_fit"]["laws"]["power_law"]["ci95"]["n"] = None
+    assert reported_joint_index(unidentified).std == math.inf
 
 
 def test_behaviour_experiment_writes_the_report(lab_recordings, tmp_path, monkeypatch):

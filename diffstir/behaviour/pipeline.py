@@ -23,7 +23,7 @@ import numpy as np
 
 from ..density import combined_density
 from ..errors import check_choice
-from ..fitting import (MODEL_FORCE_ERROR, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
+from ..fitting import (MODEL_FORCE_ERROR, Z95, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
                        window_event, window_simulations)
 from ..mpm import SimConfig
 from ..parallel import Workers
@@ -173,11 +173,16 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
 
 def reported_joint_index(summary: dict) -> SlopeEstimate | None:
     """The joint power law's slope n − 1 [1] with the standard error of n [1] (infinite where the recordings do not
-    determine n), read off a behaviour report (``Behaviour.summary()``); None without a joint power law."""
+    determine n), read off a behaviour report (``Behaviour.summary()``); None without a joint power law. A report
+    that states only n's 95 % interval [lo, hi] gives (hi − lo) / (2 z₉₅)."""
     law = (summary.get("joint_fit") or {"laws": {}})["laws"].get("power_law")
     if law is None:
         return None
-    std = law["standard_error"]["n"]
-    return SlopeEstimate(law["params"]["n"] - 1.0, math.inf if std is None else std)
+    if "standard_error" in law:
+        std = law["standard_error"]["n"]
+    else:
+        interval = law["ci95"]["n"]
+        std = None if interval is None else (interval[1] - interval[0]) / (2.0 * Z95)
+    return SlopeEstimate(law["params"]["n"] - 1.0, math.inf if std is None or not math.isfinite(std) else std)
 
 
