@@ -3,8 +3,8 @@
 #   1. the CUDA tests (tests/test_cuda.py, the rheology laws on cuda): the GPU gives the CPU's forces, gradients and
 #      sensitivities;
 #   2. ms per step forward and forward+backward on the GPU, next to the eager step on the CPU in the same process;
-#   3. the 3-D rod's buoyancy at rest with boundary particles on 2.5 mm cells (the CPU's figure, 0.348 N, to check the
-#      GPU against) and on 1.25 mm cells (the convergence the CPU could not afford), the latter cut off
+#   3. the 3-D rod's buoyancy at rest with boundary particles on 2.5 mm cells (to check against the CPU's run of the
+#      same command) and on 1.25 mm cells (the convergence the CPU could not afford), the latter cut off
 #      DEADLINE seconds after the script's start.
 #
 #   scripts/gpu_check.sh OUT_DIR [DEADLINE]
