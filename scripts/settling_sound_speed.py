@@ -2,12 +2,12 @@
 step 5, "Held, not settled at it").
 
 A fit holds the sound speed c its starting law gets (``StirProblem.frozen``, ``SimConfig.rollout_sound_speed``) and
-the fluid settles at the least sound speed, as the unheld simulator and the virtual lab's truth do. Until 2026-11-26
-a fit held c by making it the least sound speed, so the fluid also settled at c. For Newtonian fluids of
-``--viscosities`` on a recording (default: the bundled example), this prints c and the mean |reading| both ways, and
-their rms difference over the rms reading.
+the fluid settles at the least sound speed, as the unheld simulator and the virtual lab's truth do; settling at c
+instead starts from another particle arrangement. For Newtonian fluids of ``--viscosities`` on a recording (default:
+the bundled example), this prints c and the mean |reading| both ways, and their rms difference over the rms reading.
+``--sim`` names a weakly compressible preset (default: the fit's coarse stage); a projection has no sound speed.
 
-    python scripts/settling_sound_speed.py [--recording DIR] [--sim slice2d] [--viscosities 0.2 1 3]
+    python scripts/settling_sound_speed.py [--recording DIR] [--sim coarse2d] [--viscosities 0.2 1 3]
 """
 
 from __future__ import annotations
@@ -34,14 +34,16 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--recording", default=str(ROOT / "diffstir/data/examples/carreau_example"))
-    parser.add_argument("--sim", default="slice2d", help="a file of conf/sim/")
+    parser.add_argument("--sim", default="coarse2d", help="a weakly compressible preset, a file of conf/sim/")
     parser.add_argument("--density", type=float, default=1050.0, help="the fluid's density [kg/m³]")
     parser.add_argument("--viscosities", type=float, nargs="+", default=[0.2, 1.0, 3.0], help="Pa s")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    problem = StirProblem(load_recording(args.recording), instantiate(OmegaConf.load(ROOT / "conf/sim" /
-                                                                                     f"{args.sim}.yaml")),
-                          args.density)
+    config = instantiate(OmegaConf.load(ROOT / "conf/sim" / f"{args.sim}.yaml"))
+    if config.pressure != "compressible":
+        parser.error(f"--sim {args.sim}: pressure={config.pressure} has no sound speed to hold; "
+                     "choose a compressible preset (coarse2d)")
+    problem = StirProblem(load_recording(args.recording), config, args.density)
     print(f"{datetime.date.today()}, {platform.machine()}, torch {torch.__version__}, 1 thread; {args.recording} "
           f"on {args.sim}")
     print("| η [Pa·s] | held c [m/s] | mean \\|reading\\|, settled at the least c [mN] | settled at the held c [mN] "
