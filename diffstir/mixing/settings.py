@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_number, is_whole
 from ..fitting import COARSE_FORCE_ERROR, checked_model_error
 
 
@@ -41,10 +41,10 @@ class MixingSettings:
                 or self.viscosities[0] <= self.viscosities[1]):
             raise ConfigError(f"mixing.viscosities = {self.viscosities}; expected [eta1, eta2] in Pa·s, both "
                               "positive, the more viscous first")
-        if not (isinstance(self.fraction, (int, float)) and 0.0 < self.fraction < 1.0):
+        if not (is_number(self.fraction) and 0.0 < self.fraction < 1.0):
             raise ConfigError(f"mixing.fraction = {self.fraction!r}; expected fluid 1's volume fraction in (0, 1)")
-        if not (isinstance(self.window, (int, float)) and math.isfinite(self.window) and self.window > 0):
+        if not (is_number(self.window) and self.window > 0):
             raise ConfigError(f"mixing.window = {self.window!r} s; expected a positive duration in s")
-        if not (isinstance(self.iterations, int) and not isinstance(self.iterations, bool) and self.iterations >= 1):
+        if not is_whole(self.iterations, 1):
             raise ConfigError(f"mixing.iterations = {self.iterations!r}; expected a whole number of at least 1")
         checked_model_error(self.model_error, "mixing.model_error")

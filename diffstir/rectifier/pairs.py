@@ -130,7 +130,7 @@ class PairDesign:
         if not (is_number(self.holdout_fraction) and 0.0 <= self.holdout_fraction < 1.0):
             raise ConfigError(f"pairs.design.holdout_fraction = {self.holdout_fraction!r}; expected a fraction of "
                               "the window in [0, 1)")
-        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
+        if not is_whole(self.seed, 0):
             raise ConfigError(f"pairs.design.seed = {self.seed!r}; expected a whole number of at least 0")
 
     @property
