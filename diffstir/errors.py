@@ -45,6 +45,6 @@ def check_choices(setting: str, values, choices) -> None:
 
 def check_at_least(setting: str, value, low: float, unit: str = "") -> None:
     """Raise ConfigError unless ``value`` (null allowed) is a number of at least ``low`` [``unit``]."""
-    if value is not None and not (isinstance(value, (int, float)) and value >= low):
+    if value is not None and not (is_number(value) and value >= low):
         raise ConfigError(f"{setting} = {value!r}{' ' + unit if unit else ''}; expected at least {low}"
                           f"{' ' + unit if unit else ''}")

@@ -8,6 +8,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from .errors import is_number
+
 
 @dataclass(frozen=True)
 class Cup:
@@ -72,7 +74,7 @@ class Rod:
         _positive("rod.immersion_depth", self.immersion_depth, "m")
         if self.wall not in ("no_slip", "slip"):
             raise ValueError(f"rod.wall = {self.wall!r}; expected 'no_slip' or 'slip'")
-        if not (isinstance(self.slip_length, (int, float)) and 0 <= self.slip_length <= 0.1):
+        if not (is_number(self.slip_length) and 0 <= self.slip_length <= 0.1):
             raise ValueError(f"rod.slip_length = {self.slip_length!r}; expected a Navier slip length in m, "
                              f"0 <= b <= 0.1 (0 is no-slip)")
         if self.slip_length > 0 and self.wall == "slip":
@@ -113,5 +115,5 @@ class Rig:
 
 
 def _positive(name: str, value: float, unit: str) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+    if not (is_number(value) and value > 0):
         raise ValueError(f"{name} = {value!r}; expected a positive number in {unit}")

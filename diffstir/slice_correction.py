@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .errors import is_number
 from .rheology import RheologyLaw
 from .rig import Rig
 
@@ -56,13 +57,13 @@ def groups(cup_radius: float, fill_height: float, rod_radius: float, immersion_d
     """The dimensionless rig {h/a, g/a, (R − e − a)/a, e/R, R/a, n, Re}; lengths [m]."""
     for name, value in (("cup_radius", cup_radius), ("fill_height", fill_height), ("rod_radius", rod_radius),
                         ("immersion_depth", immersion_depth)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        if not (is_number(value) and value > 0):
             raise ValueError(f"{name} = {value!r} m; expected a positive length in m")
-    if not (isinstance(orbit_radius, (int, float)) and math.isfinite(orbit_radius) and orbit_radius >= 0):
+    if not (is_number(orbit_radius) and orbit_radius >= 0):
         raise ValueError(f"orbit_radius = {orbit_radius!r} m; expected the rod's distance from the cup's axis, >= 0 m")
-    if not (math.isfinite(flow_index) and flow_index > 0):
+    if not (is_number(flow_index) and flow_index > 0):
         raise ValueError(f"flow_index = {flow_index!r}; expected a positive power-law index (1 Newtonian)")
-    if not (math.isfinite(reynolds) and reynolds >= 0):
+    if not (is_number(reynolds) and reynolds >= 0):
         raise ValueError(f"reynolds = {reynolds!r}; expected rho U 2a / eta >= 0 (dimensionless)")
     if orbit_radius + rod_radius >= cup_radius:
         raise ValueError(f"orbit_radius = {orbit_radius} m: the rod (rod_radius = {rod_radius} m) does not fit in the "

@@ -155,6 +155,9 @@ def test_rig_effects_jitter_rounding_dead_start_and_clock():
     for field in ("dead_start", "position_jitter", "position_resolution", "time_origin"):
         with pytest.raises(ValueError, match=f"sensor.{field} = -1.0; expected a number >= 0 in (s|m)"):
             SensorModel(**{field: -1.0})
+    for field, value in (("noise_std", True), ("offset", "3 mN"), ("density_repeats", 2.0)):
+        with pytest.raises(ValueError, match=f"sensor.{field} = {value!r}; expected"):
+            SensorModel(**{field: value})
 
 
 def test_a_rig_sensor_writes_jittered_rounded_positions_on_the_rig_clock(tmp_path):
@@ -191,6 +194,10 @@ def test_programme_speeds_pauses_and_reversal():
     assert lz[t < 0.9].max() > 0 and lz[t > 1.8].min() < 0 and lz[t > 1.8].max() < 0
     with pytest.raises(ValueError, match="ramp_time"):
         stirring_programme(segments, radius=0.01, ramp_time=0.6)
+    with pytest.raises(ValueError, match="programme.radius = '15 mm'; expected a circle radius in m"):
+        stirring_programme(segments, radius="15 mm")
+    with pytest.raises(ValueError, match="programme segment speed = True; expected a speed in m/s"):
+        stirring_programme([{"speed": True, "duration": 1.0}], radius=0.01)
 
 
 @pytest.mark.parametrize("preset", sorted(p.stem for p in (CONF / "lab" / "programme").glob("*.yaml")))
@@ -221,6 +228,8 @@ def test_fluid_laws_from_parameters_and_flow_curves():
     assert float(law(torch.tensor([10.0], dtype=torch.float64))) == pytest.approx(1.0)  # log-log midpoint
     with pytest.raises(ValueError, match="fluid.density"):
         Fluid(name="x", density=1.2, law={"name": "newtonian"})
+    with pytest.raises(ValueError, match="fluid.temperature = '20 C'; expected"):
+        Fluid(name="x", density=1000.0, law={"name": "newtonian"}, temperature="20 C")
 
 
 def test_thixotropy_lowers_the_torque_under_steady_shear_and_recovers_after_rest():
@@ -259,6 +268,8 @@ def test_wall_slip_lowers_the_drag():
     assert np.abs(slip[-20:]).mean() < 0.9 * np.abs(plain_torque()[80:100]).mean()
     with pytest.raises(ValueError, match="rod.slip_length"):
         Rod(slip_length=-1e-3)
+    with pytest.raises(ValueError, match="rod.radius = True; expected a positive number in m"):
+        Rod(radius=True)
 
 
 def test_viscoelastic_stress_lags_the_start_up_and_reaches_the_law():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -80,6 +81,13 @@ def test_bad_flow_index_and_reynolds_are_refused():
         slice_correction(**PAPER, flow_index=0.0)
     with pytest.raises(ValueError, match="reynolds"):
         slice_correction(**PAPER, reynolds=-1.0)
+
+
+@pytest.mark.parametrize("value", [True, "0.05", float("nan")])
+def test_a_length_or_group_that_is_not_a_finite_number_is_refused_in_one_line(value):
+    for name in ("rod_radius", "flow_index", "reynolds"):
+        with pytest.raises(ValueError, match=f"^{name} = {re.escape(repr(value))}"):
+            slice_correction(**{**PAPER, name: value})
 
 
 @pytest.mark.slow

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_number
 from ..slice_correction import SliceCorrection
 from .models import FitModel
 from .parameters import ParameterSet
@@ -72,7 +72,7 @@ def force_error(model_error: float, correction: SliceCorrection | None) -> float
 
 def checked_model_error(value: float, field: str) -> float:
     """``value`` if it is a relative force error σ_m in [0, 1); otherwise a ConfigError that names ``field``."""
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value < 1.0):
+    if not (is_number(value) and 0.0 <= value < 1.0):
         raise ConfigError(f"{field} = {value!r}; expected a relative force error in [0, 1)")
     return value
 

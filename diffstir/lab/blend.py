@@ -39,6 +39,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from diffstir.errors import is_number
 from diffstir.lab.fluid import Fluid
 from diffstir.lab.sensor import SensorModel
 from diffstir.lab.synth import HiddenPhysicsSpec, LabRecording, TruthSimulation, check_programme, read_truth
@@ -74,7 +75,7 @@ class Blend:
                   ("strain_mixing", self.strain_mixing, 0.0, 10.0, "1"),
                   ("diffusivity", self.diffusivity, 0.0, 1e-3, "m^2/s"), ("interval", self.interval, 0.0, 1.0, "s"))
         for name, value, lo, hi, unit in checks:
-            if not (isinstance(value, (int, float)) and lo <= value <= hi) or (name in ("fraction", "interval")
+            if not (is_number(value) and lo <= value <= hi) or (name in ("fraction", "interval")
                                                                              and value in (lo, hi)):
                 raise ValueError(f"blend.{name} = {value!r}; expected a number in [{lo}, {hi}] {unit}")
         if self.layout not in LAYOUTS:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from diffstir.errors import ConfigError
+from diffstir.errors import ConfigError, is_number
 from diffstir.lab.fluid import Fluid
 from diffstir.rig import Rig
 from diffstir.trajectory import Trajectory
@@ -40,7 +40,7 @@ class FiniteElementTruth:
         checks = (("cell", self.cell, 5e-4, 0.02, "m"), ("growth", self.growth, 1.0, 10.0, "1 (far cells / near)"),
                   ("dt", self.dt, 1e-5, 0.02, "s"))
         for name, value, lo, hi, unit in checks:
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
+            if not (is_number(value) and lo <= value <= hi):
                 raise ConfigError(f"lab.sim.{name} = {value!r}; expected {lo} to {hi} {unit}")
 
 

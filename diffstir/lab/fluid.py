@@ -13,10 +13,10 @@ A fluid is described by a plain mapping (a Hydra config in ``conf/lab/fluid/``):
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from diffstir.errors import is_number
 from diffstir.rheology import LAWS, RheologyLaw, Tabulated, bundled_flow_curves, make_law
 
 
@@ -33,11 +33,10 @@ class Fluid:
     notes: str = ""
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.density, (int, float)) and math.isfinite(self.density)
-                and 400.0 <= self.density <= 3000.0):
+        if not (is_number(self.density) and 400.0 <= self.density <= 3000.0):
             raise ValueError(f"fluid.density = {self.density!r}; expected a liquid density in kg/m^3 "
                              f"(400 to 3000; water is 1000)")
-        if self.temperature is not None and not -30.0 <= self.temperature <= 120.0:
+        if self.temperature is not None and not (is_number(self.temperature) and -30.0 <= self.temperature <= 120.0):
             raise ValueError(f"fluid.temperature = {self.temperature!r}; expected degrees Celsius (-30 to 120)")
         object.__setattr__(self, "law", dict(self.law))
         if "name" not in self.law:

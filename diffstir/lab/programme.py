@@ -13,12 +13,12 @@ The radius is fixed over a programme (the rod never moves radially).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from diffstir.errors import is_number
 from diffstir.trajectory import Trajectory, _ramp, _ramp_integral
 
 
@@ -30,9 +30,9 @@ class Segment:
     duration: float
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.speed, (int, float)) and math.isfinite(self.speed) and abs(self.speed) <= 1.0):
+        if not (is_number(self.speed) and abs(self.speed) <= 1.0):
             raise ValueError(f"programme segment speed = {self.speed!r}; expected a speed in m/s, |speed| <= 1")
-        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and self.duration > 0):
+        if not (is_number(self.duration) and self.duration > 0):
             raise ValueError(f"programme segment duration = {self.duration!r}; expected a positive time in s")
 
 
@@ -59,12 +59,12 @@ def stirring_programme(segments: Sequence[Segment | Mapping], *, radius: float, 
     speed changes smoothed over ``ramp_time`` [s], sampled at ``sample_rate`` [Hz], starting at ``start_angle``
     [rad] from the x axis."""
     segs = _segments(segments)
-    if not (math.isfinite(radius) and 0 < radius < 1.0):
+    if not (is_number(radius) and 0 < radius < 1.0):
         raise ValueError(f"programme.radius = {radius!r}; expected a circle radius in m (0 < radius < 1)")
-    if not (math.isfinite(ramp_time) and 0 <= ramp_time <= min(s.duration for s in segs)):
+    if not (is_number(ramp_time) and 0 <= ramp_time <= min(s.duration for s in segs)):
         raise ValueError(f"programme.ramp_time = {ramp_time!r} s; expected 0 <= ramp_time <= the shortest "
                          f"segment ({min(s.duration for s in segs)} s)")
-    if not (math.isfinite(sample_rate) and sample_rate > 0):
+    if not (is_number(sample_rate) and sample_rate > 0):
         raise ValueError(f"programme.sample_rate = {sample_rate!r}; expected a positive rate in Hz")
     duration = sum(s.duration for s in segs)
     t = np.linspace(0.0, duration, max(2, int(round(duration * sample_rate)) + 1))

@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from diffstir.errors import is_number, is_whole
 from diffstir.recording import SensorSpec
 from diffstir.recording.format import SENSOR_MODES
 from diffstir.recording.sensor import sensor_reading_np
@@ -128,15 +129,15 @@ class SensorModel:
                            ("drift_walk", "N/s^0.5"), ("density_hold", "s"), ("dead_start", "s"),
                            ("position_jitter", "m"), ("position_resolution", "m"), ("time_origin", "s")):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            if not (is_number(value) and value >= 0):
                 raise ValueError(f"sensor.{name} = {value!r}; expected a number >= 0 in {unit}")
         for name, unit in (("drift_rate", "N/s"), ("offset", "N")):
-            if not math.isfinite(getattr(self, name)):
+            if not is_number(getattr(self, name)):
                 raise ValueError(f"sensor.{name} = {getattr(self, name)!r}; expected a finite number in {unit}")
         stated = self.stated_time_constant
-        if stated is not None and not (isinstance(stated, (int, float)) and math.isfinite(stated) and stated >= 0):
+        if stated is not None and not (is_number(stated) and stated >= 0):
             raise ValueError(f"sensor.stated_time_constant = {stated!r}; expected null or a number >= 0 in s")
-        if not (isinstance(self.density_repeats, int) and self.density_repeats >= 1):
+        if not is_whole(self.density_repeats, 1):
             raise ValueError(f"sensor.density_repeats = {self.density_repeats!r}; expected a whole number >= 1")
         if not (math.isfinite(self.gain_error) and self.gain_error > -1):
             raise ValueError(f"sensor.gain_error = {self.gain_error!r}; expected a relative error > -1 (1)")

@@ -31,12 +31,13 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from diffstir.errors import is_number
 from diffstir.mpm.materials import deviatoric_rate_of_strain, shear_rate
 from diffstir.rheology.parameters import BoundedParameter
 
 
 def _check(name: str, value: float, lo: float, hi: float, unit: str, *, open_lo: bool = True) -> None:
-    ok = isinstance(value, (int, float)) and math.isfinite(value) and (value > lo if open_lo else value >= lo)
+    ok = is_number(value) and (value > lo if open_lo else value >= lo)
     if not (ok and value <= hi):
         interval = f"({lo}, {hi}]" if open_lo else f"[{lo}, {hi}]"
         raise ValueError(f"{name} = {value!r}; expected a number in {interval} {unit}")

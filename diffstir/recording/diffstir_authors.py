@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from diffstir.errors import ConfigError, OutputError
+from diffstir.errors import ConfigError, OutputError, is_number
 from diffstir.recording.errors import RecordingError
 from diffstir.recording.files import save_recording
 from diffstir.recording.format import SENSOR_MODES, CupGeometry, Recording, RodGeometry, SensorSpec
@@ -56,8 +56,7 @@ class ImportSettings:
     one_sided: bool = True
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.sample_rate, (int, float)) and math.isfinite(self.sample_rate)
-                and self.sample_rate > 0):
+        if not (is_number(self.sample_rate) and self.sample_rate > 0):
             raise ConfigError(f"sample_rate = {self.sample_rate!r}; expected a positive rate in Hz")
         if self.mode not in SENSOR_MODES:
             raise ConfigError(f"sensor.mode = {self.mode!r}; expected one of {', '.join(SENSOR_MODES)}")
@@ -126,7 +125,7 @@ def _scene(path: Path) -> tuple[dict[str, float], float]:
     values = {}
     for field, unit in [(f, "m") for f in SCENE_LENGTHS] + [("liquid_density", "kg/m^3")]:
         value = scene.get(field)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if not is_number(value):
             raise RecordingError(f"{path}: scene_information.{field} = {value!r}; expected a finite number in "
                                  f"{unit}")
         values[field] = float(value)
