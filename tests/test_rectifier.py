@@ -2,6 +2,7 @@
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import torch
 
 from diffstir.fitting.initial import ViscosityLadder
 from diffstir.mpm import SimConfig
+from diffstir.mpm.config import COARSE_STAGE
 from diffstir.rectifier import pairs as pairs_module
 from diffstir.rectifier.apply import load_rectifier, refine
 from diffstir.rectifier.model import Rectifier
@@ -267,6 +269,20 @@ def test_the_held_out_verdict_applies_a_rectifier_only_where_it_lowers_the_error
     unknown = refine(rectifier, {k: v for k, v in metadata.items() if k != "held_out"}, preliminary, 1000.0,
                      str(ckpt))
     assert unknown["value"] is None and "no held-out verdict" in unknown["note"]
+
+
+def test_the_shipped_checkpoint_is_not_applied_to_an_estimate_of_other_numerics():
+    """The shipped pairs' estimator ran without the shear stress's substeps (its record predates them): the fit's
+    coarse stage runs with them, so its estimate is not refined, and the note names the setting."""
+    shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "rectifier" / "rectifier.ckpt"
+    rectifier, metadata = load_rectifier(shipped)
+    assert "viscous_substeps" not in metadata["estimator"]
+    preliminary = {"viscosity": 0.5, "mean_stirring_speed": 0.05, "resolves": True,
+                   "estimator": {"name": "newtonian_ladder", **COARSE_STAGE.numerics()}}
+    out = refine(rectifier, metadata, preliminary, 1000.0, str(shipped))
+    assert out["value"] is None
+    assert out["note"] == ("not refined: the preliminary estimate was made with viscous_substeps=True, the rectifier "
+                           "was trained on viscous_substeps=False")
 
 
 def test_a_residual_rectifier_corrects_the_preliminary_viscosity():

@@ -192,13 +192,15 @@ class SimConfig:
 #: Settings that say where and how a simulation runs, not what it computes (``SimConfig.force_settings``).
 RUN_SETTINGS = ("device", "kernels", "compile", "checkpoint_every")
 
-#: The settings of ``SimConfig.numerics``. A record that lacks some of the last five was made by numerics that
-#: had then the values of ``FORMER_NUMERICS`` (APIC transfers, each particle's own J, a fixed sound speed, no
-#: boundary particles).
+#: The settings of ``SimConfig.numerics``. A record that lacks some of them was made by numerics that had then the
+#: values of ``FORMER_NUMERICS``: APIC transfers, each particle's own J, a fixed sound speed, no boundary particles,
+#: the shear stress's explicit limit setting the step (no substeps), and the 2 ms largest step that the coarse stage,
+#: the only estimator such records describe, has always had (conf/sim/coarse2d.yaml). A record made with substeps
+#: before they were recorded reads as made without them, so a rectifier trained on it is not applied.
 NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure",
-            "wall_pressure")
+            "wall_pressure", "viscous_substeps", "max_substeps", "dt_max")
 FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible",
-                   "wall_pressure": False}
+                   "wall_pressure": False, "viscous_substeps": False, "max_substeps": None, "dt_max": 0.002}
 
 #: The fit's fine stage (``conf/sim/slice2d.yaml``; a test holds them equal): the 2-D slice on 2.5 mm cells, its
 #: pressure solved for incompressibility, a 2 ms step of at most 15 viscous substeps.
