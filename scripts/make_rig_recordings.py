@@ -9,9 +9,11 @@ diffstir/data/examples/ (each with its truth file beside it; docs/virtual-lab.md
 | rig_dead_start | carreau_example | 15 mm circle, 0.10 m/s, 1.5 s | rig_thin_film_1khz: one-sided, 0.4 s dead start |
 | rig_behaviour_slow, _mid, _fast | carreau_example | 6 mm circle at 0.03, 0.06, 0.12 m/s, 1.4, 0.8, 0.55 s | rig_encoder_200hz: 1 um |
 | rig_blend | 1.0 and 0.1 Pa s Newtonian, half each | 15 mm circle, 0.08 m/s, 2.4 s (four 0.5 s windows of the default mixing experiment) | rig_encoder_200hz |
+| rig_fe3d_6s | carreau_example | 15 mm circle, 0.05 m/s, 6 s | paper |
 
 The truth simulation is the lab's default (conf/lab/sim/truth2d.yaml, 2 mm cells) in the paper's rig
-(conf/rig/paper.yaml); seed 0 for each. The blend is scripts/mixing_example.py's (α = 0.6, core layout, 0.3 mixing
+(conf/rig/paper.yaml), except rig_fe3d_6s's: the stir in the 3-D cup by finite elements (conf/lab/sim/fe3d.yaml);
+seed 0 for each. The blend is scripts/mixing_example.py's (α = 0.6, core layout, 0.3 mixing
 per unit strain).
 """
 
@@ -49,21 +51,22 @@ BLEND = {"first": {"name": "viscous", "density": 1260.0, "law": {"name": "newton
          "second": {"name": "thin", "density": 1000.0, "law": {"name": "newtonian", "params": {"eta": 0.1}}},
          "fraction": 0.5, "alpha": 0.6, "layout": "core", "strain_mixing": 0.3}
 
-#: name -> (programme, sensor preset, blend or None)
+#: name -> (programme, sensor preset, blend or None, truth preset in conf/lab/sim/)
 RECORDINGS = {
-    "rig_jitter_1khz": (_programme(0.015, 0.10, 1.0), "rig_tracker_1khz", None),
-    "rig_dead_start": (_programme(0.015, 0.10, 1.5), "rig_thin_film_1khz", None),
-    "rig_behaviour_slow": (_programme(0.006, 0.03, 1.4), "rig_encoder_200hz", None),
-    "rig_behaviour_mid": (_programme(0.006, 0.06, 0.8), "rig_encoder_200hz", None),
-    "rig_behaviour_fast": (_programme(0.006, 0.12, 0.55), "rig_encoder_200hz", None),
-    "rig_blend": (_programme(0.015, 0.08, 2.4), "rig_encoder_200hz", BLEND),
+    "rig_jitter_1khz": (_programme(0.015, 0.10, 1.0), "rig_tracker_1khz", None, "truth2d"),
+    "rig_dead_start": (_programme(0.015, 0.10, 1.5), "rig_thin_film_1khz", None, "truth2d"),
+    "rig_behaviour_slow": (_programme(0.006, 0.03, 1.4), "rig_encoder_200hz", None, "truth2d"),
+    "rig_behaviour_mid": (_programme(0.006, 0.06, 0.8), "rig_encoder_200hz", None, "truth2d"),
+    "rig_behaviour_fast": (_programme(0.006, 0.12, 0.55), "rig_encoder_200hz", None, "truth2d"),
+    "rig_blend": (_programme(0.015, 0.08, 2.4), "rig_encoder_200hz", BLEND, "truth2d"),
+    "rig_fe3d_6s": (_programme(0.015, 0.05, 6.0), "paper", None, "fe3d"),
 }
 
 
 def make(name: str, out: Path, overwrite: bool) -> None:
-    programme, sensor_preset, blend = RECORDINGS[name]
+    programme, sensor_preset, blend, truth = RECORDINGS[name]
     rig = instantiate(OmegaConf.load(ROOT / "conf" / "rig" / "paper.yaml"))
-    sim_config = instantiate(OmegaConf.load(ROOT / "conf" / "lab" / "sim" / "truth2d.yaml"))
+    sim_config = instantiate(OmegaConf.load(ROOT / "conf" / "lab" / "sim" / f"{truth}.yaml"))
     sensor = SensorModel(**_preset("sensor", sensor_preset))
     trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
                                     ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])

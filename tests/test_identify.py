@@ -18,7 +18,7 @@ from diffstir.fitting.models import FitModel
 from diffstir.fitting.nuisance import lag_response
 from diffstir.fitting.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
 from diffstir.fitting.problem import StirProblem, Windows
-from diffstir.fitting.selection import bic, select
+from diffstir.fitting.selection import averaged_interval, bic, bic_weights, select
 from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
 from diffstir.identification import identify
 from diffstir.lab import SensorModel
@@ -383,6 +383,30 @@ def test_bic_charges_parameters():
     assert weak["bic_margin"] == {"best": "b", "runner_up": "a", "delta_bic": 1.5, "evidence": "weak"}
 
 
+def test_bic_weights_are_the_laws_evidence_and_rule_out_a_law_very_strongly_against():
+    weights = bic_weights({"a": -100.0, "b": -98.0, "c": -89.0, "d": math.nan})
+    assert weights["b"] / weights["a"] == pytest.approx(math.exp(-1.0))  # p ∝ exp(−ΔBIC / 2)
+    assert weights["c"] == weights["d"] == 0.0 and weights["a"] + weights["b"] == pytest.approx(1.0)
+    assert bic_weights({"a": math.nan}) == {"a": 0.0}
+
+
+def test_the_averaged_interval_is_a_lone_laws_own_and_spans_two_laws_that_disagree():
+    z = 1.959963984540054
+    lone = averaged_interval({"a": (1.0, 0.8, 1.25)}, {"a": 1.0})
+    assert lone == pytest.approx((0.8, 1.25), rel=1e-9)
+    # two narrow laws a factor e^2 apart, half the weight each: each tail of 2.5 % is the 5 % tail of one law
+    s = math.log(1.1) / z
+    both = averaged_interval({"a": (1.0, 1.0 / 1.1, 1.1), "b": (math.e**2, math.e**2 / 1.1, math.e**2 * 1.1)},
+                             {"a": 0.5, "b": 0.5})
+    tail = 1.6448536269514722  # Φ⁻¹(0.95)
+    assert both == pytest.approx((math.exp(-tail * s), math.exp(2.0 + tail * s)), rel=1e-6)
+    # a law whose interval is open carries half its weight to each end: under 5 % the ends stay finite
+    assert all(map(math.isfinite, averaged_interval({"a": (1.0, 0.8, 1.25), "b": (1.0, 0.0, math.inf)},
+                                                    {"a": 0.96, "b": 0.04})))
+    assert averaged_interval({"a": (1.0, 0.8, 1.25), "b": (1.0, 0.0, math.inf)}, {"a": 0.9, "b": 0.1}) == (0.0,
+                                                                                                      math.inf)
+
+
 def test_effective_shear_rate_is_where_a_thinning_fluid_reads_like_its_newtonian_equivalent():
     # the defining property of γ̇_eff: a shear-thinning fluid's reading equals that of a Newtonian fluid with its
     # viscosity at γ̇_eff. Carreau n = 0.6 thins by 25 % across 1-4 1/s, so a rate off by a factor 2 fails the 10 %
@@ -560,6 +584,20 @@ def test_report_files(newtonian_identification):
     assert report["simulation"]["force_error"] == MODEL_FORCE_ERROR
     assert set(report["apparent_viscosity"]) >= {"zero_shear", "effective_shear_rate", "at_effective_shear_rate",
                                                  "refined"}
+    # the interval holds the selection's uncertainty: the laws weighted by their BIC evidence, inside their hull
+    apparent = report["apparent_viscosity"]
+    weights = apparent["law_weights"]
+    assert weights == pytest.approx({k: w for k, w in bic_weights({k: v["bic"] for k, v in report["laws"].items()
+                                                                   if k != "corotated"}).items() if w > 0})
+    assert report["selected"] in weights and sum(weights.values()) == pytest.approx(1.0)
+    hull = [report["laws"][k]["apparent_viscosity"]["at_effective_shear_rate_ci95"] for k in weights]
+    lo, hi = apparent["at_effective_shear_rate_ci95"]
+    assert min(h[0] for h in hull) * (1 - 1e-9) <= lo <= apparent["at_effective_shear_rate"] <= hi
+    assert hi <= max(h[1] for h in hull) * (1 + 1e-9)
+    assert apparent["selected_law_ci95"] == report["laws"][report["selected"]]["apparent_viscosity"][
+        "at_effective_shear_rate_ci95"]
+    if len(weights) > 1:
+        assert "the laws weighted by their BIC evidence" in paths["md"].read_text()
     assert report["density"]["value"] == 1000.0
     assert report["laws"]["newtonian"]["sensor"] == {"units": {}}  # no sensor nuisances by default
     assert report["family"]["class"] == "newtonian"  # a Newtonian fluid is Newtonian over any band

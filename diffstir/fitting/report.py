@@ -25,8 +25,8 @@ def markdown(summary: dict) -> str:
              f"- effective shear rate of the stir: {av['effective_shear_rate']:.3g} 1/s; probed band "
              f"{summary['shear_rate_range'][0]:.3g}-{summary['shear_rate_range'][1]:.3g} 1/s",
              f"- apparent viscosity at the effective shear rate: {av['at_effective_shear_rate']:.4g} Pa·s "
-             f"(95 % CI {av['at_effective_shear_rate_ci95'][0]:.4g}-{av['at_effective_shear_rate_ci95'][1]:.4g}); "
-             f"at zero shear: {av['zero_shear']:.4g} Pa·s"]
+             f"(95 % CI {av['at_effective_shear_rate_ci95'][0]:.4g}-{av['at_effective_shear_rate_ci95'][1]:.4g}"
+             f"{_averaged(av)}); at zero shear: {av['zero_shear']:.4g} Pa·s"]
     family = summary["family"]
     if family is not None:
         lo, hi = family["slope_ci95"]
@@ -135,6 +135,16 @@ def plot_all(result, out: Path) -> dict[str, Path]:
     ax.legend(fontsize=7)
     paths["losses"] = save_figure(fig, out / "losses.png")
     return paths
+
+
+def _averaged(apparent: dict) -> str:
+    """Where more than one law weighs in the apparent viscosity's interval, a clause naming their BIC weights."""
+    weights = apparent.get("law_weights") or {}
+    if len(weights) < 2:
+        return ""
+    lo, hi = apparent["selected_law_ci95"]
+    listed = ", ".join(f"{name} {w:.2f}" for name, w in sorted(weights.items(), key=lambda kv: -kv[1]))
+    return f", the laws weighted by their BIC evidence: {listed}; the selected law alone {lo:.4g}-{hi:.4g}"
 
 
 def _margin(margin: dict | None) -> str:

@@ -18,6 +18,7 @@ from .optimise import FitResult
 from .parameters import ParameterSet
 from .problem import StirProblem
 from .report import markdown, plot_all
+from .selection import averaged_interval, bic_weights
 from .uncertainty import Uncertainty, log_viscosity_interval
 
 
@@ -79,6 +80,29 @@ class Identification(Report):
                 "at_effective_shear_rate": float(eta[0]), "at_effective_shear_rate_ci95": [float(lo[0]), float(hi[0])],
                 "refined": self.refined}
 
+    def selected_apparent_viscosity(self) -> dict:
+        """The selected law's ``apparent_viscosity`` with the selection's uncertainty in its interval: the laws'
+        estimates at the effective shear rate weighted by their BIC evidence (``fitting.selection``). Its own
+        interval is kept as ``selected_law_ci95``, the weights as ``law_weights``. A law selected by another
+        criterion that the BIC rules out very strongly keeps its own interval."""
+        name = self.selection["selected"]
+        own = self.apparent_viscosity(name)
+        laws = [n for n, fit in self.fits.items() if not fit.model.is_baseline]
+        weights = bic_weights({n: self.selection["bic"][n] for n in laws})
+        estimates = {}
+        for n in laws:
+            if weights[n] > 0.0:
+                eta = self.apparent_viscosity(n)
+                estimates[n] = (eta["at_effective_shear_rate"], *eta["at_effective_shear_rate_ci95"])
+        if weights[name] > 0.0:
+            lower, upper = averaged_interval(estimates, weights)
+        else:  # selected by another criterion against the BIC's very strong evidence: its own interval
+            lower, upper = own["at_effective_shear_rate_ci95"]
+            weights = {n: float(n == name) for n in laws}
+        return {**own, "at_effective_shear_rate_ci95": [float(lower), float(upper)],
+                "selected_law_ci95": own["at_effective_shear_rate_ci95"],
+                "law_weights": {n: w for n, w in weights.items() if w > 0.0}}
+
     def summary(self) -> dict:
         """The report as JSON-serialisable data (SI units; see docs/identification.md)."""
         laws = {}
@@ -104,7 +128,7 @@ class Identification(Report):
             "selection": {k: v for k, v in self.selection.items() if k != "bic"},
             "laws": laws_only,
             "baseline": laws.get("corotated"),
-            "apparent_viscosity": self.apparent_viscosity(self.selection["selected"]),
+            "apparent_viscosity": self.selected_apparent_viscosity(),
             "preliminary": self.preliminary,
             "resolvable": self.resolvable,
             "magnitude": self.magnitude,

@@ -45,6 +45,26 @@ def test_fit_reads_density_and_viscosity_within_its_intervals(name, tmp_path):
 
 
 @full_only
+def test_a_six_second_recording_with_a_3d_truth_is_fitted_on_its_first_two_seconds(tmp_path):
+    """The default fit of a 6 s recording whose force is the 3-D cup's by finite elements (docs/acceptance.md times
+    it): the fit window is conf/fit.yaml's first 2 s, the force scale the slice's corrected one, and the density
+    and the truth law's viscosity at the effective shear rate within the report's intervals (the latter holding the
+    selection's uncertainty: docs/accuracy.md gives the point's error)."""
+    name = "rig_fe3d_6s"
+    assert truth(name)["simulator"]["kind"] == "fe3d"
+    ok(run("diffstir-fit", f"recording={example(name)}", "out=fit", cwd=tmp_path, timeout=1800))
+    report = json.loads((tmp_path / "fit" / "report.json").read_text())
+    windows = report["windows"]
+    assert windows["end"] - windows["start"] == pytest.approx(2.0, abs=0.02)
+    assert report["force_scale"] == "F' h C"
+    lo, hi = report["density"]["ci95"]
+    assert lo <= truth(name)["fluid"]["density"] <= hi
+    av = report["apparent_viscosity"]
+    lo, hi = av["at_effective_shear_rate_ci95"]
+    assert lo <= truth_viscosity(name, av["effective_shear_rate"]) <= hi
+
+
+@full_only
 def test_behaviour_classifies_three_constant_speed_stirs_at_200_hz(tmp_path):
     recordings = ",".join(example(f"rig_behaviour_{s}") for s in ("slow", "mid", "fast"))
     ok(run("diffstir-fit", "experiment=behaviour", f"recordings=[{recordings}]", "out=behaviour", cwd=tmp_path,
