@@ -24,6 +24,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import norm
 
+from .uncertainty import Z95
+
 CRITERIA = ("bic", "holdout", "loss")
 
 #: Kass and Raftery's scale: the weakest ΔBIC of each grade of evidence.
@@ -87,7 +89,7 @@ def bic_weights(bics: dict[str, float]) -> dict[str, float]:
 
 
 def averaged_interval(estimates: dict[str, tuple[float, float, float]], weights: dict[str, float],
-                      z: float = 1.959963984540054) -> tuple[float, float]:
+                      z: float = Z95) -> tuple[float, float]:
     """The central 95 % interval [lower, upper] of Σ_k p_k LogNormal(ln η_k, s_k²), the laws' estimates
     ``estimates`` {name: (η_k, lower_k, upper_k)} (each a central 95 % interval, s_k = ln(upper_k / lower_k) / (2z))
     weighted by ``weights`` p_k. A law whose interval is open ([0, ∞)) carries half its weight to each end, so the
@@ -110,7 +112,7 @@ def averaged_interval(estimates: dict[str, tuple[float, float, float]], weights:
     finite = np.isfinite(sigma)
     spread = float(np.max(np.where(finite, sigma, 0.0))) + 1.0
     low_end, high_end = float(mu.min()) - 12.0 * spread, float(mu.max()) + 12.0 * spread
-    tail = (1.0 - (norm.cdf(z) - norm.cdf(-z))) / 2.0
+    tail = float(norm.sf(z))  # 2.5 % each side
     lower = 0.0 if cdf(low_end) >= tail else math.exp(brentq(lambda x: cdf(x) - tail, low_end, high_end))
     upper = math.inf if cdf(high_end) <= 1.0 - tail else math.exp(brentq(lambda x: cdf(x) - (1.0 - tail),
                                                                            low_end, high_end))
