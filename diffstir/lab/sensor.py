@@ -123,7 +123,7 @@ class SensorModel:
                 raise ValueError(f"sensor.axis = {self.axis!r}; expected a horizontal unit vector [1, 1]")
         if self.mode == "component" and self.axis is None:
             raise ValueError("sensor.axis is missing; mode component needs a horizontal unit vector")
-        if not (math.isfinite(self.sample_rate) and self.sample_rate > 0):
+        if not (is_number(self.sample_rate) and self.sample_rate > 0):
             raise ValueError(f"sensor.sample_rate = {self.sample_rate!r}; expected a positive rate in Hz")
         for name, unit in (("resolution", "N"), ("noise_std", "N"), ("lag_time", "s"), ("dead_band", "N"),
                            ("drift_walk", "N/s^0.5"), ("density_hold", "s"), ("dead_start", "s"),
@@ -139,7 +139,7 @@ class SensorModel:
             raise ValueError(f"sensor.stated_time_constant = {stated!r}; expected null or a number >= 0 in s")
         if not is_whole(self.density_repeats, 1):
             raise ValueError(f"sensor.density_repeats = {self.density_repeats!r}; expected a whole number >= 1")
-        if not (math.isfinite(self.gain_error) and self.gain_error > -1):
+        if not (is_number(self.gain_error) and self.gain_error > -1):
             raise ValueError(f"sensor.gain_error = {self.gain_error!r}; expected a relative error > -1 (1)")
 
     def spec(self) -> SensorSpec:
