@@ -13,7 +13,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "diffstir"
 
 #: Floors from the bottom; a unit is a subpackage or a module directly under diffstir.
 FLOORS = (
-    ("errors", "rig", "parallel", "report_files", "plots"),
+    ("errors",),
+    ("rig", "parallel", "report_files", "plots"),
     ("rheology", "recording"),
     ("trajectory", "density", "slice_correction"),
     ("mpm", "hardware"),
