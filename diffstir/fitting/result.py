@@ -80,21 +80,19 @@ class Identification(Report):
                 "at_effective_shear_rate": float(eta[0]), "at_effective_shear_rate_ci95": [float(lo[0]), float(hi[0])],
                 "refined": self.refined}
 
-    def selected_apparent_viscosity(self) -> dict:
+    def selected_apparent_viscosity(self, apparent: dict[str, dict]) -> dict:
         """The selected law's ``apparent_viscosity`` with the selection's uncertainty in its interval: the laws'
-        estimates at the effective shear rate weighted by their BIC evidence (``fitting.selection``). Its own
-        interval is kept as ``selected_law_ci95``, the weights as ``law_weights``. A law selected by another
-        criterion that the BIC rules out very strongly keeps its own interval."""
+        estimates at the effective shear rate weighted by their BIC evidence (``fitting.selection``). ``apparent``
+        holds every model's ``apparent_viscosity`` by name. The selected law's own interval is kept as
+        ``selected_law_ci95``, the weights as ``law_weights``. A law selected by another criterion that the BIC
+        rules out very strongly keeps its own interval."""
         name = self.selection["selected"]
-        own = self.apparent_viscosity(name)
+        own = apparent[name]
         laws = [n for n, fit in self.fits.items() if not fit.model.is_baseline]
         weights = bic_weights({n: self.selection["bic"][n] for n in laws})
-        estimates = {}
-        for n in laws:
-            if weights[n] > 0.0:
-                eta = self.apparent_viscosity(n)
-                estimates[n] = (eta["at_effective_shear_rate"], *eta["at_effective_shear_rate_ci95"])
         if weights[name] > 0.0:
+            estimates = {n: (apparent[n]["at_effective_shear_rate"], *apparent[n]["at_effective_shear_rate_ci95"])
+                         for n in laws if weights[n] > 0.0}
             lower, upper = averaged_interval(estimates, weights)
         else:  # selected by another criterion against the BIC's very strong evidence: its own interval
             lower, upper = own["at_effective_shear_rate_ci95"]
@@ -105,6 +103,7 @@ class Identification(Report):
 
     def summary(self) -> dict:
         """The report as JSON-serialisable data (SI units; see docs/identification.md)."""
+        apparent = {name: self.apparent_viscosity(name) for name in self.fits}
         laws = {}
         for name, fit in self.fits.items():
             unc = self.uncertainty[name]
@@ -113,7 +112,7 @@ class Identification(Report):
                 "loss": fit.loss, "holdout_loss": fit.holdout_loss,
                 "bic": self.selection["bic"][name], "residual_std": unc.residual_std,
                 "effective_samples": unc.effective_samples,
-                "apparent_viscosity": self.apparent_viscosity(name),
+                "apparent_viscosity": apparent[name],
                 "evaluations": fit.evaluations, "seconds": fit.seconds, "optimizer_message": fit.message,
                 "sensor": {**fit.sensor, "units": {k: UNITS[k] for k in fit.sensor}},
                 "family": self.family(name),
@@ -128,7 +127,7 @@ class Identification(Report):
             "selection": {k: v for k, v in self.selection.items() if k != "bic"},
             "laws": laws_only,
             "baseline": laws.get("corotated"),
-            "apparent_viscosity": self.selected_apparent_viscosity(),
+            "apparent_viscosity": self.selected_apparent_viscosity(apparent),
             "preliminary": self.preliminary,
             "resolvable": self.resolvable,
             "magnitude": self.magnitude,
