@@ -28,13 +28,13 @@ already has that response in p (``StirProblem.simulate``); a fitted lag is then 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from scipy import optimize
 
+from ..errors import is_number
 from ..recording.sensor import first_order_response
 
 NUISANCES = ("offset", "lag")
@@ -75,7 +75,7 @@ class SensorNuisance:
         if unknown:
             raise ValueError(f"fit.sensor_nuisance = {list(fitted)}: {unknown} unknown; expected a subset of "
                              f"{list(NUISANCES)}")
-        if not (math.isfinite(self.max_lag) and self.max_lag > 0):
+        if not (is_number(self.max_lag) and self.max_lag > 0):
             raise ValueError(f"max_lag = {self.max_lag!r}; expected a positive time in s")
         object.__setattr__(self, "fitted", tuple(n for n in NUISANCES if n in fitted))
 
