@@ -99,36 +99,52 @@ def sim_config(name: str, sim_settings: dict | None = None):
     return replace(instantiate(OmegaConf.load(CONF / f"sim/{name}.yaml")), **(sim_settings or {}))
 
 
+def lab_recording(index: int, case: str, recordings: Path | None = None):
+    """The case's 3-D truth recording through the paper's sensor (seed = ``index``), kept in and reused from
+    ``recordings``: (recording, truth, seconds the truth took)."""
+    from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise, truth_path, write_lab_recording
+    from diffstir.recording import load_recording
+
+    rig_name, fluid_name = case.split("/")
+    density, law, programme = FLUIDS[fluid_name]
+    fluid = Fluid(name=fluid_name, density=density, law=law)
+    trajectory = stirring_programme(programme, radius=RIGS[rig_name][-1], ramp_time=RAMP)
+    sensor = SensorModel(**yaml.safe_load((CONF / "lab/sensor/paper.yaml").read_text()))
+    started = time.perf_counter()
+    kept = recordings / case.replace("/", "_") if recordings else None
+    if kept is not None and kept.exists():
+        return load_recording(kept), json.loads(truth_path(kept).read_text()), time.perf_counter() - started
+    lab = synthesise(fluid, trajectory, rig=rig_of(rig_name), sim_config=fe_config(), sensor=sensor, seed=index)
+    if kept is not None:
+        write_lab_recording(lab, kept)
+    return lab.recording, lab.truth, time.perf_counter() - started
+
+
+def true_viscosity(fluid_name: str, shear_rate: float) -> float:
+    """The case's fluid's viscosity [Pa·s] at ``shear_rate`` [1/s]."""
+    import torch
+
+    from diffstir.lab import Fluid
+
+    density, law, _ = FLUIDS[fluid_name]
+    with torch.no_grad():
+        return float(Fluid(name=fluid_name, density=density, law=law).make_law().double()(
+            torch.tensor([shear_rate], dtype=torch.float64))[0])
+
+
 def run_case(index: int, case: str, recordings: Path | None = None, sim_settings: dict | None = None) -> dict:
     """One case: the 3-D truth recording (kept in and reused from ``recordings``), then the fit with and without
     the slice correction, both resolutions with ``sim_settings``."""
     import torch
 
     from diffstir.identification import identify
-    from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise, truth_path, write_lab_recording
-    from diffstir.recording import load_recording
     from diffstir.rectifier.apply import load_rectifier, refine
 
     torch.set_num_threads(1)
     rig_name, fluid_name = case.split("/")
     density, law, programme = FLUIDS[fluid_name]
-    rig = rig_of(rig_name)
-    fluid = Fluid(name=fluid_name, density=density, law=law)
-    trajectory = stirring_programme(programme, radius=RIGS[rig_name][-1], ramp_time=RAMP)
-    truth_config = fe_config()
-    sensor = SensorModel(**yaml.safe_load((CONF / "lab/sensor/paper.yaml").read_text()))
-    started = time.perf_counter()
-    kept = recordings / case.replace("/", "_") if recordings else None
-    if kept is not None and kept.exists():
-        recording, truth = load_recording(kept), json.loads(truth_path(kept).read_text())
-    else:
-        lab = synthesise(fluid, trajectory, rig=rig, sim_config=truth_config, sensor=sensor, seed=index)
-        recording, truth = lab.recording, lab.truth
-        if kept is not None:
-            write_lab_recording(lab, kept)
-    truth_seconds = time.perf_counter() - started
+    recording, truth, truth_seconds = lab_recording(index, case, recordings)
     fine, coarse = sim_config("slice2d", sim_settings), sim_config("coarse2d", sim_settings)
-    true_law = fluid.make_law().double()
     row = {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
            "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}}
@@ -140,8 +156,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
         fitted = summary["laws"][law["name"]]
         apparent = summary["apparent_viscosity"]
         rate = apparent["effective_shear_rate"]
-        with torch.no_grad():
-            eta_true = float(true_law(torch.tensor([rate], dtype=torch.float64))[0])
+        eta_true = true_viscosity(fluid_name, rate)
         lo, hi = apparent["at_effective_shear_rate_ci95"]
         row["corrected" if corrected else "slice_only"] = {
             "params": fitted["params"], "ci95": fitted["ci95"], "identifiable": fitted["identifiable"],
@@ -163,6 +178,63 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
                                 "note": refined["note"], "eta_true": eta_true,
                                 "effective_shear_rate": result.preliminary.get("effective_shear_rate", rate)}
     return row
+
+
+def true_class(fluid_name: str, band: tuple[float, float], shear_rate: float) -> str:
+    """The class the case's fluid shows over the probed ``band`` [1/s], by the rules the report applies to a fitted
+    law (``diffstir.fitting.family``): yield stress, Newtonian, shear-thinning or shear-thickening."""
+    from diffstir.fitting.family import NEWTONIAN_CHANGE, YIELD_SHARE
+
+    law = FLUIDS[fluid_name][1]
+    tau_y = law["params"].get("tau_y", 0.0)
+    if tau_y >= YIELD_SHARE * true_viscosity(fluid_name, shear_rate) * shear_rate:
+        return "yield_stress"
+    change = math.log(true_viscosity(fluid_name, band[1]) / true_viscosity(fluid_name, band[0]))
+    if abs(change) < NEWTONIAN_CHANGE:
+        return "newtonian"
+    return "shear_thinning" if change < 0 else "shear_thickening"
+
+
+def run_selection_case(index: int, case: str, recordings: Path | None = None,
+                       sim_settings: dict | None = None) -> dict:
+    """One case fitted as ``diffstir-fit`` does, with every law of conf/fit.yaml's ``model`` and the BIC's
+    selection (the corotated baseline, which takes no part in it, and the size estimate, beside the fits, left
+    out): the selected law, its class over the probed shear rates against the truth's, the report's apparent
+    viscosity with the selection's uncertainty, and every law's BIC, held-out loss and apparent viscosity."""
+    import torch
+
+    from diffstir.identification import identify
+
+    torch.set_num_threads(1)
+    rig_name, fluid_name = case.split("/")
+    density, law, programme = FLUIDS[fluid_name]
+    recording, truth, truth_seconds = lab_recording(index, case, recordings)
+    models = yaml.safe_load((CONF / "fit.yaml").read_text())["model"]
+    started = time.perf_counter()
+    result = identify(recording, models, config=sim_config("slice2d", sim_settings),
+                      coarse=sim_config("coarse2d", sim_settings), baseline=False, size_estimate=False, progress=False)
+    summary = result.summary()
+    apparent = summary["apparent_viscosity"]
+    rate = apparent["effective_shear_rate"]
+    eta_true = true_viscosity(fluid_name, rate)
+    lo, hi = apparent["at_effective_shear_rate_ci95"]
+    band = summary["shear_rate_range"]
+    return {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
+            "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
+            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}, "models": models,
+            "selection": {
+                "selected": summary["selected"], "class": (summary["family"] or {}).get("class"),
+                "true_class": true_class(fluid_name, band, rate) if band[1] > band[0] > 0 else None,
+                "band": band, "effective_shear_rate": rate, "eta_true": eta_true,
+                "eta": apparent["at_effective_shear_rate"], "eta_ci95": [lo, hi],
+                "selected_law_ci95": apparent["selected_law_ci95"], "law_weights": apparent["law_weights"],
+                "error": apparent["at_effective_shear_rate"] / eta_true - 1.0, "covered": lo <= eta_true <= hi,
+                "laws": {name: {"bic": fit["bic"], "loss": fit["loss"], "holdout_loss": fit["holdout_loss"],
+                                "eta": fit["apparent_viscosity"]["at_effective_shear_rate"],
+                                "eta_ci95": fit["apparent_viscosity"]["at_effective_shear_rate_ci95"],
+                                "class": (fit["family"] or {}).get("class"), "params": fit["params"]}
+                         for name, fit in summary["laws"].items()},
+                "seconds": time.perf_counter() - started}}
 
 
 def compare(case: str, sim_settings: dict | None = None,
@@ -218,9 +290,10 @@ def compare(case: str, sim_settings: dict | None = None,
 
 def _attempt(job: tuple) -> tuple[str, dict | None, str]:
     """``run_case`` in a worker: (case, row, "") or (case, None, the error) so that one failure stops no other."""
-    index, case, recordings, sim_settings = job
+    index, case, recordings, sim_settings, models = job
+    run = run_selection_case if models == "default" else run_case
     try:
-        return case, run_case(index, case, recordings, sim_settings), ""
+        return case, run(index, case, recordings, sim_settings), ""
     except Exception as error:
         return case, None, f"{type(error).__name__}: {error}"
 
@@ -277,6 +350,48 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+SHORT = {"newtonian": "N", "carreau": "Ca", "cross": "Cr", "herschel_bulkley": "HB", "power_law": "PL"}
+
+
+def selection_table(rows: list[dict]) -> str:
+    """The markdown table of ``--models default`` rows: per case the truth's class over the probed shear rates,
+    the selected law and its class, the report's apparent viscosity with the selection's uncertainty against the
+    truth, and every law's BIC above the best with its own apparent viscosity's error."""
+    lines = ["| rig | fluid | γ̇ band [1/s] | true class | selected (BIC weight) | its class | η true [Pa·s] | "
+             "η reported [95 % CI] | error | holds | selected law's own CI holds | each law: ΔBIC, η error |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = sorted(rows, key=lambda r: CASES.index(r["case"]) if r["case"] in CASES else len(CASES))
+    for r in rows:
+        s = r["selection"]
+        best = min(fit["bic"] for fit in s["laws"].values())
+        laws = "; ".join(f"{SHORT.get(name, name)} {fit['bic'] - best:.1f}, "
+                         f"{100 * (fit['eta'] / s['eta_true'] - 1):+.1f} %"
+                         for name, fit in sorted(s["laws"].items(), key=lambda item: item[1]["bic"]))
+        weights = ", ".join(f"{SHORT.get(n, n)} {w:.2f}" for n, w in sorted(s["law_weights"].items(),
+                                                                           key=lambda item: -item[1]))
+        lines.append(
+            f"| {r['rig']} | {r['fluid']} | {s['band'][0]:.2g}-{s['band'][1]:.2g} | {s['true_class']} | "
+            f"{s['selected']} ({weights}) | {s['class']} | {s['eta_true']:.4g} | "
+            f"{_estimate(s)} | {100 * s['error']:+.1f} % | {'yes' if s['covered'] else 'no'} | "
+            f"{'yes' if _holds(s['selected_law_ci95'], s['eta_true']) else 'no'} | {laws} |")
+    if rows:
+        picks = [r["selection"] for r in rows]
+        lines += ["", f"Class right {sum(p['class'] == p['true_class'] for p in picks)}/{len(picks)}; "
+                  f"apparent viscosity within 10 % {sum(abs(p['error']) <= 0.1 for p in picks)}/{len(picks)}; "
+                  f"reported intervals holding the truth {sum(p['covered'] for p in picks)}/{len(picks)} "
+                  f"(the selected law's own {sum(_holds(p['selected_law_ci95'], p['eta_true']) for p in picks)}"
+                  f"/{len(picks)})."]
+    return "\n".join(lines)
+
+
+def tables(rows: list[dict]) -> str:
+    """The markdown tables of ``rows``: the selection's for ``--models default`` rows, otherwise the own law's
+    fits' and the shipped rectifier's."""
+    if rows and "selection" in rows[0]:
+        return selection_table(rows)
+    return table(rows) + "\n\n" + rectifier_table(rows)
+
+
 def rectifier_table(rows: list[dict]) -> str:
     """The shipped rectifier against the 3-D truth: |relative error| of the preliminary estimate (before) and of the
     refined one (after, where the rectifier refines), MAE, RMSE, median and p90, by fluid; beside them the MAE of
@@ -323,6 +438,9 @@ def main() -> None:
     parser.add_argument("--sim", nargs="+", default=[], metavar="KEY=VALUE",
                         help="SimConfig settings for both fit resolutions, e.g. compressibility=0.003 or "
                         "pressure=projection")
+    parser.add_argument("--models", choices=("own", "default"), default="own",
+                        help="own: each fluid's own law, with and without the slice correction (default); default: "
+                        "conf/fit.yaml's laws and the BIC's selection among them")
     parser.add_argument("--table", type=Path, help="print the tables of an existing JSON file and exit")
     parser.add_argument("--compare", choices=CASES, metavar="RIG/FLUID",
                         help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
@@ -332,21 +450,24 @@ def main() -> None:
         print(compare(args.compare, sim_settings))
         return
     if args.table:
-        rows = json.loads(args.table.read_text())["rows"]
-        print(table(rows) + "\n\n" + rectifier_table(rows))
+        print(tables(json.loads(args.table.read_text())["rows"]))
         return
     data = json.loads(args.out.read_text()) if args.out and args.out.exists() else {
         "description": __doc__.splitlines()[0], "command": "python scripts/truth3d_benchmark.py "
         + " ".join(sys.argv[1:]), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.platform()}",
-        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "rows": []}
+        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "models": args.models, "rows": []}
+    if data.get("models", "own") != args.models:
+        sys.exit(f"{args.out}: its rows are of --models {data.get('models', 'own')}; expected --models {args.models} "
+                 "(choose another --out)")
     done = {r["case"] for r in data["rows"]}
     todo = [(CASES.index(c), c) for c in args.cases if c not in done]
     print(f"{len(todo)} cases to run ({len(done)} done)", flush=True)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # end the workers too (the pool's terminate below)
     pool = get_context("spawn").Pool(max(1, args.jobs), maxtasksperchild=1)
     try:
-        for case, row, error in pool.imap_unordered(_attempt, [(i, c, args.recordings, sim_settings)
-                                                                for i, c in todo]):
+        for case, row, error in pool.imap_unordered(_attempt, [(i, c, args.recordings, sim_settings,
+                                                                 args.models) for i, c in todo]):
             if row is None:
                 print(f"{case}: failed: {error}", flush=True)
                 continue
@@ -357,13 +478,18 @@ def main() -> None:
                 tmp = args.out.with_suffix(".tmp")
                 tmp.write_text(json.dumps(data, indent=1, default=float))
                 tmp.replace(args.out)
-            c = row["corrected"]
-            print(f"{row['case']}: η {c['eta']:.4g} against {c['eta_true']:.4g} ({100 * c['error']:+.1f} %), "
-                  f"slice-only {100 * row['slice_only']['error']:+.1f} %", flush=True)
+            if "selection" in row:
+                c = row["selection"]
+                print(f"{row['case']}: {c['selected']} selected, η {c['eta']:.4g} against {c['eta_true']:.4g} "
+                      f"({100 * c['error']:+.1f} %)", flush=True)
+            else:
+                c = row["corrected"]
+                print(f"{row['case']}: η {c['eta']:.4g} against {c['eta_true']:.4g} ({100 * c['error']:+.1f} %), "
+                      f"slice-only {100 * row['slice_only']['error']:+.1f} %", flush=True)
     finally:
         pool.terminate()
         pool.join()
-    print(table(data["rows"]) + "\n\n" + rectifier_table(data["rows"]))
+    print(tables(data["rows"]))
 
 
 if __name__ == "__main__":
