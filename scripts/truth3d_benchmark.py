@@ -16,12 +16,19 @@ three speeds.
     python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
     python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
     python scripts/truth3d_benchmark.py --recordings outputs/truth3d --sim compressibility=0.003 --out /tmp/c.json
+    python scripts/truth3d_benchmark.py --models default --recordings outputs/truth3d --out /tmp/s.json --jobs 2
     python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
     python scripts/truth3d_benchmark.py --compare project/newtonian_0.1           # where the forces differ
+    python scripts/truth3d_benchmark.py --compare project/power_law_0.6 --windows 0.3:0.7 1:1.4 1.7:2.1
 ``--compare RIG/FLUID`` locates a mismatch: the rod's force over the case's stir in the frame turning with it
 (drag against the motion, radial outwards; means over windows) from the 3-D finite elements, the same elements'
 2-D slab times the immersion, and the fitting simulator's 2-D slice (sim=slice2d with ``--sim``) times the
 immersion, all at the truth's law, before any sensor or fit.
+
+``--models default`` fits each case as ``diffstir-fit`` does, with conf/fit.yaml's laws and the BIC's selection
+among them, once (with the slice correction): the selected law, the class it shows over the probed shear rates
+against the truth's (``diffstir.fitting.family``'s rules applied to the truth's law), the report's apparent viscosity
+with the selection's uncertainty, and every law's BIC, held-out loss and apparent viscosity.
 
 ``--recordings DIR`` keeps each case's recording and truth there (``DIR/<rig>_<fluid>``) and reuses them when
 present, so other fit settings (``--sim KEY=VALUE``, applied to both resolutions) run without the truth's cost.
@@ -381,6 +388,14 @@ def selection_table(rows: list[dict]) -> str:
                   f"reported intervals holding the truth {sum(p['covered'] for p in picks)}/{len(picks)} "
                   f"(the selected law's own {sum(_holds(p['selected_law_ci95'], p['eta_true']) for p in picks)}"
                   f"/{len(picks)})."]
+        for criterion, key in (("the lowest held-out loss (fit.selection=holdout)", "holdout_loss"),
+                               ("the lowest loss (fit.selection=loss, the paper's)", "loss")):
+            chosen = [(p, min(p["laws"].values(), key=lambda fit: fit[key])) for p in picks]
+            close = sum(abs(fit["eta"] / p["eta_true"] - 1) <= 0.1 for p, fit in chosen)
+            lines.append(f"The same fits selected by {criterion}: class right "
+                         f"{sum(fit['class'] == p['true_class'] for p, fit in chosen)}/{len(chosen)}; its law's "
+                         f"apparent viscosity within 10 % {close}/{len(chosen)}, its own interval holding the truth "
+                         f"{sum(_holds(fit['eta_ci95'], p['eta_true']) for p, fit in chosen)}/{len(chosen)}.")
     return "\n".join(lines)
 
 
@@ -441,13 +456,16 @@ def main() -> None:
     parser.add_argument("--models", choices=("own", "default"), default="own",
                         help="own: each fluid's own law, with and without the slice correction (default); default: "
                         "conf/fit.yaml's laws and the BIC's selection among them")
+    parser.add_argument("--windows", nargs="+", default=["0:0.2", "0.2:0.5", "0.5:1", "1:1.5", "1.5:2"],
+                        metavar="START:END", help="--compare's time windows [s] (default: %(default)s)")
     parser.add_argument("--table", type=Path, help="print the tables of an existing JSON file and exit")
     parser.add_argument("--compare", choices=CASES, metavar="RIG/FLUID",
                         help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
     args = parser.parse_args()
     sim_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.sim)}
     if args.compare:
-        print(compare(args.compare, sim_settings))
+        windows = [tuple(float(x) for x in w.split(":")) for w in args.windows]
+        print(compare(args.compare, sim_settings, windows))
         return
     if args.table:
         print(tables(json.loads(args.table.read_text())["rows"]))
