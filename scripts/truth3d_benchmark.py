@@ -127,6 +127,15 @@ def lab_recording(index: int, case: str, recordings: Path | None = None):
     return lab.recording, lab.truth, time.perf_counter() - started
 
 
+def case_row(case: str, truth: dict, truth_seconds: float, sim_settings: dict | None) -> dict:
+    """What a row records of its case: the rig, the fluid, its law and programme, the truth's simulator."""
+    rig_name, fluid_name = case.split("/")
+    density, law, programme = FLUIDS[fluid_name]
+    return {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
+            "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
+            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}}
+
+
 def true_viscosity(fluid_name: str, shear_rate: float) -> float:
     """The case's fluid's viscosity [Pa·s] at ``shear_rate`` [1/s]."""
     import torch
@@ -148,13 +157,11 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     from diffstir.rectifier.apply import load_rectifier, refine
 
     torch.set_num_threads(1)
-    rig_name, fluid_name = case.split("/")
-    density, law, programme = FLUIDS[fluid_name]
+    fluid_name = case.split("/")[1]
+    law = FLUIDS[fluid_name][1]
     recording, truth, truth_seconds = lab_recording(index, case, recordings)
     fine, coarse = sim_config("slice2d", sim_settings), sim_config("coarse2d", sim_settings)
-    row = {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
-           "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
-           "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}}
+    row = case_row(case, truth, truth_seconds, sim_settings)
     for corrected in (True, False):
         t0 = time.perf_counter()
         result = identify(recording, (law["name"],), config=fine, coarse=coarse, baseline=False, size_estimate=False,
@@ -213,8 +220,7 @@ def run_selection_case(index: int, case: str, recordings: Path | None = None,
     from diffstir.identification import identify
 
     torch.set_num_threads(1)
-    rig_name, fluid_name = case.split("/")
-    density, law, programme = FLUIDS[fluid_name]
+    fluid_name = case.split("/")[1]
     recording, truth, truth_seconds = lab_recording(index, case, recordings)
     models = yaml.safe_load((CONF / "fit.yaml").read_text())["model"]
     started = time.perf_counter()
@@ -226,9 +232,7 @@ def run_selection_case(index: int, case: str, recordings: Path | None = None,
     eta_true = true_viscosity(fluid_name, rate)
     lo, hi = apparent["at_effective_shear_rate_ci95"]
     band = summary["shear_rate_range"]
-    return {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
-            "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
-            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}, "models": models,
+    return {**case_row(case, truth, truth_seconds, sim_settings), "models": models,
             "selection": {
                 "selected": summary["selected"], "class": (summary["family"] or {}).get("class"),
                 "true_class": true_class(fluid_name, band, rate) if band[1] > band[0] > 0 else None,
