@@ -195,18 +195,20 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
 
 
 def true_class(fluid_name: str, band: tuple[float, float], shear_rate: float) -> str:
-    """The class the case's fluid shows over the probed ``band`` [1/s], by the rules the report applies to a fitted
-    law (``diffstir.fitting.family``): yield stress, Newtonian, shear-thinning or shear-thickening."""
-    from diffstir.fitting.family import NEWTONIAN_CHANGE, YIELD_SHARE
+    """The class the case's fluid shows over the probed ``band`` [1/s] around the stir's effective ``shear_rate``
+    [1/s]: the report's classification of a fitted law (``diffstir.fitting.family.law_family``) applied to the
+    truth's law, which has no uncertainty."""
+    import numpy as np
+
+    from diffstir.fitting import FitModel
+    from diffstir.fitting.family import law_family
+    from diffstir.fitting.uncertainty import Uncertainty
 
     law = FLUIDS[fluid_name][1]
-    tau_y = law["params"].get("tau_y", 0.0)
-    if tau_y >= YIELD_SHARE * true_viscosity(fluid_name, shear_rate) * shear_rate:
-        return "yield_stress"
-    change = math.log(true_viscosity(fluid_name, band[1]) / true_viscosity(fluid_name, band[0]))
-    if abs(change) < NEWTONIAN_CHANGE:
-        return "newtonian"
-    return "shear_thinning" if change < 0 else "shear_thickening"
+    model = FitModel.named(law["name"], **law["params"])
+    exact = Uncertainty(covariance=np.zeros((model.size, model.size)), ci95={}, identifiable={}, at_bound={},
+                        effective_samples=math.inf, residual_std=0.0)
+    return law_family(model, model.theta(), exact, band, shear_rate)["class"]
 
 
 def run_selection_case(index: int, case: str, recordings: Path | None = None,
@@ -300,7 +302,8 @@ def compare(case: str, sim_settings: dict | None = None,
 
 
 def _attempt(job: tuple) -> tuple[str, dict | None, str]:
-    """``run_case`` in a worker: (case, row, "") or (case, None, the error) so that one failure stops no other."""
+    """``run_case`` (``run_selection_case`` for ``--models default``) in a worker: (case, row, "") or (case, None,
+    the error) so that one failure stops no other."""
     index, case, recordings, sim_settings, models = job
     run = run_selection_case if models == "default" else run_case
     try:
@@ -337,7 +340,8 @@ def _estimate(fit: dict) -> str:
 def _open(fit: dict) -> bool:
     """Whether the apparent viscosity's interval spans more than the factor ``MAX_FACTOR`` either way."""
     eta, (lo, hi) = fit["eta"], fit["eta_ci95"]
-    return not (math.isfinite(lo) and math.isfinite(hi) and lo > 0 and hi <= MAX_FACTOR * eta and eta <= MAX_FACTOR * lo)
+    return not (math.isfinite(lo) and math.isfinite(hi) and lo > 0
+                and hi <= MAX_FACTOR * eta and eta <= MAX_FACTOR * lo)
 
 
 def table(rows: list[dict]) -> str:
