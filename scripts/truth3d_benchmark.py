@@ -11,7 +11,7 @@ intervals hold the truth.
 Rigs: the project's default (conf/rig/paper.yaml on a 15 mm circle) and the study's ``shallow`` rig, both in the
 slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the study never saw. Fluids: Newtonian
 from 0.03 to 5 Pa·s at one speed; power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
-three speeds.
+three speeds inside the fitted 1.5 s and a fourth in the held-out 0.5 s.
 
     python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
     python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
@@ -19,7 +19,7 @@ three speeds.
     python scripts/truth3d_benchmark.py --models default --recordings outputs/truth3d --out /tmp/s.json --jobs 2
     python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
     python scripts/truth3d_benchmark.py --compare project/newtonian_0.1           # where the forces differ
-    python scripts/truth3d_benchmark.py --compare project/power_law_0.6 --windows 0.3:0.7 1:1.4 1.7:2.1
+    python scripts/truth3d_benchmark.py --compare project/power_law_0.6 --windows 0.2:0.5 0.7:1 1.2:1.5
 ``--compare RIG/FLUID`` locates a mismatch: the rod's force over the case's stir in the frame turning with it
 (drag against the motion, radial outwards; means over windows) from the 3-D finite elements, the same elements'
 2-D slab times the immersion, and the fitting simulator's 2-D slice (sim=slice2d with ``--sim``) times the
@@ -58,7 +58,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 RAMP = 0.2  # s
 ONE_SPEED = [{"speed": 0.08, "duration": 2.0}]  # m/s, s
-THREE_SPEEDS = [{"speed": s, "duration": 0.7} for s in (0.04, 0.08, 0.16)]  # m/s, s: a factor 4 in speed
+SPEED_STEPS = [{"speed": s, "duration": 0.5} for s in (0.04, 0.08, 0.16, 0.11)]  # m/s, s: the default fit's
+# first 1.5 s hold three speeds a factor 4 apart; its held-out last 0.5 s, a fourth it never saw between them
 RIGS = {  # cup radius, fill height, cup height, rod radius, immersion depth, circle radius [m]
     "project": (0.0425, 0.13005, 0.165, 0.0125, 0.080, 0.015),
     "shallow": (0.0475, 0.090, 0.120, 0.0125, 0.040, 0.020),
@@ -69,12 +70,12 @@ FLUIDS = {  # name: (density [kg/m³], law, programme)
     "newtonian_0.1": (1100.0, {"name": "newtonian", "params": {"eta": 0.1}}, ONE_SPEED),
     "newtonian_1": (1200.0, {"name": "newtonian", "params": {"eta": 1.0}}, ONE_SPEED),
     "newtonian_5": (1260.0, {"name": "newtonian", "params": {"eta": 5.0}}, ONE_SPEED),
-    "power_law_0.6": (1050.0, {"name": "power_law", "params": {"k": 1.5, "n": 0.6}}, THREE_SPEEDS),
-    "power_law_1.3": (1150.0, {"name": "power_law", "params": {"k": 0.3, "n": 1.3}}, THREE_SPEEDS),
+    "power_law_0.6": (1050.0, {"name": "power_law", "params": {"k": 1.5, "n": 0.6}}, SPEED_STEPS),
+    "power_law_1.3": (1150.0, {"name": "power_law", "params": {"k": 0.3, "n": 1.3}}, SPEED_STEPS),
     "carreau": (1100.0, {"name": "carreau", "params": {"eta0": 2.0, "eta_inf": 0.01, "lam": 1.0, "n": 0.5}},
-                THREE_SPEEDS),
+                SPEED_STEPS),
     "herschel_bulkley": (1100.0, {"name": "herschel_bulkley", "params": {"tau_y": 1.0, "k": 0.8, "n": 0.6}},
-                         THREE_SPEEDS),
+                         SPEED_STEPS),
 }
 CASES = [f"{rig}/{fluid}" for fluid in FLUIDS for rig in RIGS]
 RECTIFIER = ROOT / "checkpoints" / "rectifier" / "rectifier.ckpt"
@@ -109,6 +110,8 @@ def sim_config(name: str, sim_settings: dict | None = None):
 def lab_recording(index: int, case: str, recordings: Path | None = None):
     """The case's 3-D truth recording through the paper's sensor (seed = ``index``), kept in and reused from
     ``recordings``: (recording, truth, seconds the truth took)."""
+    import numpy as np
+
     from diffstir.lab import Fluid, SensorModel, stirring_programme, synthesise, truth_path, write_lab_recording
     from diffstir.recording import load_recording
 
@@ -120,7 +123,14 @@ def lab_recording(index: int, case: str, recordings: Path | None = None):
     started = time.perf_counter()
     kept = recordings / case.replace("/", "_") if recordings else None
     if kept is not None and kept.exists():
-        return load_recording(kept), json.loads(truth_path(kept).read_text()), time.perf_counter() - started
+        recording = load_recording(kept)
+        path = np.interp(recording.t, trajectory.t, trajectory.xy[:, 0]), np.interp(recording.t, trajectory.t,
+                                                                                    trajectory.xy[:, 1])
+        if not (abs(recording.duration - trajectory.t[-1]) < 0.05
+                and np.allclose(path, (recording.x, recording.y), atol=1e-4)):
+            sys.exit(f"{kept}: kept for another stir than this benchmark's programme for {case}; remove it or "
+                     "choose another --recordings")
+        return recording, json.loads(truth_path(kept).read_text()), time.perf_counter() - started
     lab = synthesise(fluid, trajectory, rig=rig_of(rig_name), sim_config=fe_config(), sensor=sensor, seed=index)
     if kept is not None:
         write_lab_recording(lab, kept)
