@@ -186,6 +186,36 @@ def test_a_shard_of_another_design_is_refused(shard):
         run_shard(small_design(seed=4), 0, out, truth_config=FAST, estimator_config=FAST, log=lambda _: None)
 
 
+def test_a_shard_with_the_3d_finite_element_truth_samples_as_its_truth_and_records_it(tmp_path, monkeypatch):
+    """The 3-D truth (``lab/sim@truth=fe3d``) steps to the programme's last sample, so the group samples its
+    template on those steps; the pairs and the group record the truth's numerics, a group kept for another truth is
+    refused, and hidden physics, which the finite elements do not model, is refused before any simulation."""
+    pytest.importorskip("skfem")
+    pytest.importorskip("gmsh")
+    from diffstir.errors import ConfigError
+    from diffstir.lab import FiniteElementTruth
+
+    ladder = ViscosityLadder((1e-3, 1e-2, 1e-1, 1.0, 10.0), (0.01, 0.011, 0.02, 0.1, 1.0))  # the estimator's own
+    monkeypatch.setattr(pairs_module.ViscosityLadder, "simulate", classmethod(lambda cls, problem: ladder))
+    monkeypatch.setattr(pairs_module, "effective_shear_rate", lambda problem, eta: 5.0)  # simulated elsewhere
+    truth = FiniteElementTruth(cell=0.008, dt=0.005)
+    design = small_design(fluids_per_shard=1, sensors_per_fluid=2, viscosity=(5.0, 10.0))
+    report = run_shard(design, 0, tmp_path, truth_config=truth, estimator_config=FAST, log=lambda _: None)
+    assert report == {"shard": 0, "fluids": 1, "expected_fluids": 1, "failed": []}
+    lines = [json.loads(x) for x in (tmp_path / "shards" / "shard-0000.jsonl").read_text().splitlines()]
+    assert len(lines) == 2
+    assert all(p["truth_config"] == {"kind": "fe3d", "cell": 0.008, "growth": 3.0, "dt": 0.005} for p in lines)
+    group = json.loads((tmp_path / "shards" / "shard-0000.group.json").read_text())
+    assert group["truth"] == truth.numerics() and group["times"][-1] <= design.duration
+    with pytest.raises(ValueError, match="another truth"):
+        run_shard(design, 0, tmp_path, truth_config=FAST, estimator_config=FAST, log=lambda _: None)
+    hidden = small_design(physics={"thixotropy": {"alpha": 1.0, "breakdown": 0.05, "rebuild_time": 5.0,
+                                                  "initial_structure": 1.0}})
+    with pytest.raises(ConfigError, match="hidden physics needs an MPM truth"):
+        run_shard(hidden, 0, tmp_path / "hidden", truth_config=truth, estimator_config=FAST, log=lambda _: None)
+    assert not (tmp_path / "hidden").exists()
+
+
 def synthetic_pairs(n_fluids=120, per_fluid=4, seed=0):
     """Pairs with a known systematic gap: η_p = 0.6 η_ref^1.1 (U / 0.05 m/s)^0.3, with 5 % noise per reading."""
     rng = np.random.default_rng(seed)

@@ -43,6 +43,16 @@ class FiniteElementTruth:
             if not (is_number(value) and lo <= value <= hi):
                 raise ConfigError(f"lab.sim.{name} = {value!r}; expected {lo} to {hi} {unit}")
 
+    def times(self, trajectory: Trajectory) -> np.ndarray:
+        """The truth's times [s]: steps of ``dt`` from the trajectory's first sample to its last."""
+        steps = int(math.floor((trajectory.t[-1] - trajectory.t[0]) / self.dt + 1e-9))
+        return trajectory.t[0] + self.dt * np.arange(steps + 1)
+
+    def numerics(self) -> dict:
+        """What the truth's force depends on besides the fluid, the rig and the stir, for records that must say
+        which simulator made them (a rectifier's training pairs)."""
+        return {"kind": "fe3d", "cell": self.cell, "growth": self.growth, "dt": self.dt}
+
 
 def circle_motion(trajectory: Trajectory, times: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """The circle's radius e [m] and the rod's angle θ [rad], rate Ω [rad/s] and Ω' [rad/s²] at ``times`` [s]
@@ -82,8 +92,7 @@ def fe_stir_force(fluid: Fluid, trajectory: Trajectory, rig: Rig, config: Finite
     except ImportError as error:
         raise ConfigError(f"lab/sim=fe3d needs the validation extra ({error.name} is missing): "
                           f"pip install -e '.[validation]'") from None
-    steps = int(math.floor((trajectory.t[-1] - trajectory.t[0]) / config.dt + 1e-9))
-    times = trajectory.t[0] + config.dt * np.arange(steps + 1)
+    times = config.times(trajectory)
     orbit, angle, rate, acceleration = circle_motion(trajectory, times)
     cup = stokes3d.CupRig.of(rig, orbit)
     if orbit + cup.rod_radius >= cup.cup_radius or cup.gap <= 0:

@@ -3,8 +3,9 @@ pipeline's own preliminary estimator.
 
 A pair is (mean stirring speed U [m/s], preliminary viscosity η_p [Pa·s], reference viscosity η_ref [Pa·s]):
 
-* the recording comes from the virtual lab: a fluid's truth simulation at the truth resolution, read through a
-  randomly drawn, realistic sensor model, with its Archimedes density readings;
+* the recording comes from the virtual lab: a fluid's truth (an MPM simulation finer than the estimator's, or the
+  stir in the 3-D cup by finite elements, ``lab/sim@truth=fe3d``), read through a randomly drawn, realistic sensor
+  model, with its Archimedes density readings;
 * η_p is the Newtonian ladder estimate (``diffstir.fitting.initial.ViscosityLadder``) on the estimator's
   resolution, exactly what ``identify`` computes before it fits any law;
 * η_ref is the fluid's true apparent viscosity at the stir's effective shear rate γ̇_eff, measured as ``identify``
@@ -37,8 +38,8 @@ from diffstir.errors import ConfigError, check_choices, is_number, is_whole
 from diffstir.fitting import (PROBE_INDEX_STEP, StirProblem, ViscosityLadder, Windows, effective_shear_rate,
                               mean_stirring_speed)
 from diffstir.lab import (
-    Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth, simulate_truth,
-    stirring_programme,
+    FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, TruthSimulation, make_fluid_law, read_truth,
+    simulate_truth, stirring_programme,
 )
 from diffstir.mpm import SimConfig
 from diffstir.report_files import write_text_atomically
@@ -250,17 +251,21 @@ class ShardPaths:
         return cls(stem.with_suffix(".jsonl"), stem.with_suffix(".failures.jsonl"), stem.with_suffix(".group.json"))
 
 
-def run_shard(design: PairDesign, shard: int, out: str | Path, *, truth_config: SimConfig,
+def run_shard(design: PairDesign, shard: int, out: str | Path, *, truth_config: SimConfig | FiniteElementTruth,
               estimator_config: SimConfig, retries: int = 2, log=print) -> dict:
-    """Make the pairs of ``shard`` into ``out``/shards (resuming), and return the shard's counts."""
+    """Make the pairs of ``shard`` into ``out``/shards (resuming), and return the shard's counts. The truth is a
+    2-D or 3-D MPM simulation (a ``SimConfig``) or the 3-D cup by finite elements (a ``FiniteElementTruth``)."""
+    physics = HiddenPhysicsSpec.from_mapping(design.physics)
+    if isinstance(truth_config, FiniteElementTruth) and (physics.in_material or physics.slip_length > 0):
+        raise ConfigError("pairs.design.physics: hidden physics needs an MPM truth (lab/sim@truth=pairs2d or "
+                          "truth2d); the 3-D finite-element truth (fe3d) holds a generalized-Newtonian law only")
     paths = ShardPaths.of(Path(out), shard)
     paths.pairs.parent.mkdir(parents=True, exist_ok=True)
     programme, density = design.group(shard)
     trajectory = stirring_programme([{"speed": programme["speed"], "duration": design.duration}],
                                     radius=programme["radius"], ramp_time=design.ramp_time)
-    physics = HiddenPhysicsSpec.from_mapping(design.physics)
     done = _finished_fluids(paths.pairs, design.digest())
-    group = _group(design, shard, paths.group, trajectory, density, physics, estimator_config, log)
+    group = _group(design, shard, paths.group, trajectory, density, physics, truth_config, estimator_config, log)
     _update_references(paths.pairs, group, log)
     ladder = ViscosityLadder(tuple(group["ladder"]["viscosities"]), tuple(group["ladder"]["mean_abs"]))
     failures = []
@@ -291,20 +296,26 @@ def run_shard(design: PairDesign, shard: int, out: str | Path, *, truth_config: 
             "failed": [x["fluid_id"] for x in failures]}
 
 
-def _group(design, shard, path, trajectory, density, physics, estimator_config, log) -> dict:
-    """The group's ladder and effective shear rates, simulated once and kept in ``path``."""
+def _group(design, shard, path, trajectory, density, physics, truth_config, estimator_config, log) -> dict:
+    """The group's ladder and effective shear rates, simulated once and kept in ``path``, with the truth's
+    numerics: a group kept for another truth is refused (its sample times and its pairs are that truth's)."""
     group = json.loads(path.read_text()) if path.exists() else {}
+    if group.get("truth", truth_config.numerics()) != truth_config.numerics():
+        raise ValueError(f"{path}: made for another truth ({group['truth']}, not {truth_config.numerics()}); use "
+                         "another out directory")
     # groups written before group digests existed carry the whole design's digest
     same_group = group.get("group_digest", group.get("design")) in (design.group_digest(), design.digest())
     if same_group and group.get("shear_rate_method") == SHEAR_RATE_METHOD:
-        if group.get("group_digest") != design.group_digest():
-            group["group_digest"] = design.group_digest()
+        if group.get("group_digest") != design.group_digest() or "truth" not in group:
+            group.update(group_digest=design.group_digest(), truth=truth_config.numerics())
             path.write_text(json.dumps(group))
         return group
     started = time.perf_counter()
-    # the group's sampling from a silent recording of the same path (no simulation): mid-step force times of any
-    # step shorter than the sampling interval give the same sample times
-    times = np.linspace(1e-6, design.duration - 1e-6, int(design.duration * 1e4) + 1)
+    # the group's sampling from a silent recording of the same path (no simulation): the finite elements' step
+    # times, or for an MPM truth mid-step force times, which for any step shorter than the sampling interval give
+    # the same sample times
+    times = (truth_config.times(trajectory) if isinstance(truth_config, FiniteElementTruth)
+             else np.linspace(1e-6, design.duration - 1e-6, int(design.duration * 1e4) + 1))
     silent = TruthSimulation.silent(Fluid("silent", density, {"name": "newtonian", "params": {"eta": 1.0}}),
                                     trajectory, Rig(), times, estimator_config, physics)
     template = read_truth(silent, SensorModel(**_fixed(design.sensor))).recording
@@ -314,7 +325,8 @@ def _group(design, shard, path, trajectory, density, physics, estimator_config, 
     else:
         ladder = ViscosityLadder.simulate(problem)
     rates = {str(eta): effective_shear_rate(problem, eta) for eta in RATE_PROBES}
-    group = {"design": design.digest(), "group_digest": design.group_digest(), "shard": shard, "density": density,
+    group = {"design": design.digest(), "group_digest": design.group_digest(), "truth": truth_config.numerics(),
+             "shard": shard, "density": density,
              "programme": dict(design.group(shard)[0]),
              "ladder": {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs)},
              "effective_shear_rates": rates, "shear_rate_method": SHEAR_RATE_METHOD,
