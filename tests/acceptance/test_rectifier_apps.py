@@ -34,3 +34,14 @@ def test_pairs_makes_a_shard_and_collects_it(tmp_path):
     lines = (tmp_path / "pairs" / "pairs.jsonl").read_text().splitlines()
     assert not manifest["complete"] and manifest["pairs"] == len(lines) > 0
     assert manifest["expected_pairs"] == 2500
+
+
+@full_only
+def test_pairs_with_the_3d_truth_makes_a_shard(tmp_path):
+    pytest.importorskip("skfem")
+    ok(run("diffstir-pairs", "lab/sim@truth=fe3d", "pairs/design=truth3d", "pairs.design.fluids_per_shard=1",
+           "out=pairs", cwd=tmp_path, timeout=3600))  # one fluid of shard 0, the design's sensors
+    lines = [json.loads(x) for x in (tmp_path / "pairs" / "shards" / "shard-0000.jsonl").read_text().splitlines()]
+    assert len(lines) == 10 and {p["truth_config"]["kind"] for p in lines} == {"fe3d"}
+    # the design's viscosities start at 0.1 Pa s; a regularised law meets its drawn target within 1e-3
+    assert all(p["preliminary_viscosity"] > 0 and p["reference_viscosity"] >= 0.1 * (1 - 1e-3) for p in lines)
