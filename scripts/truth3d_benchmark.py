@@ -16,6 +16,7 @@ three speeds inside the fitted 1.5 s and a fourth in the held-out 0.5 s.
     python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
     python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
     python scripts/truth3d_benchmark.py --recordings outputs/truth3d --sim compressibility=0.003 --out /tmp/c.json
+    python scripts/truth3d_benchmark.py --cases held_out/power_law_1.3 --fit fine_iterations=8 --out /tmp/f.json
     python scripts/truth3d_benchmark.py --models default --recordings outputs/truth3d --out /tmp/s.json --jobs 2
     python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
     python scripts/truth3d_benchmark.py --compare project/newtonian_0.1           # where the forces differ
@@ -31,7 +32,8 @@ against the truth's (``diffstir.fitting.family``'s rules applied to the truth's 
 with the selection's uncertainty, and every law's BIC, held-out loss and apparent viscosity.
 
 ``--recordings DIR`` keeps each case's recording and truth there (``DIR/<rig>_<fluid>``) and reuses them when
-present, so other fit settings (``--sim KEY=VALUE``, applied to both resolutions) run without the truth's cost.
+present, so other fit settings (``--sim KEY=VALUE``, applied to both resolutions; ``--fit KEY=VALUE``, conf/fit.yaml's
+fit block) run without the truth's cost.
 Needs the validation extra (``pip install -c constraints.txt -e ".[validation]"``).
 """
 
@@ -137,13 +139,15 @@ def lab_recording(index: int, case: str, recordings: Path | None = None):
     return lab.recording, lab.truth, time.perf_counter() - started
 
 
-def case_row(case: str, truth: dict, truth_seconds: float, sim_settings: dict | None) -> dict:
-    """What a row records of its case: the rig, the fluid, its law and programme, the truth's simulator."""
+def case_row(case: str, truth: dict, truth_seconds: float, sim_settings: dict | None,
+             fit_settings: dict | None = None) -> dict:
+    """What a row records of its case: the rig, the fluid, its law and programme, the truth's simulator, and the
+    settings (``--sim``, ``--fit``) its fits ran with."""
     rig_name, fluid_name = case.split("/")
     density, law, programme = FLUIDS[fluid_name]
     return {"case": case, "rig": rig_name, "fluid": fluid_name, "law": law, "density": density,
             "programme": programme, "circle_radius": RIGS[rig_name][-1], "truth": truth["simulator"],
-            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}}
+            "truth_seconds": truth_seconds, "sim_settings": sim_settings or {}, "fit_settings": fit_settings or {}}
 
 
 def true_viscosity(fluid_name: str, shear_rate: float) -> float:
@@ -158,9 +162,10 @@ def true_viscosity(fluid_name: str, shear_rate: float) -> float:
             torch.tensor([shear_rate], dtype=torch.float64))[0])
 
 
-def run_case(index: int, case: str, recordings: Path | None = None, sim_settings: dict | None = None) -> dict:
+def run_case(index: int, case: str, recordings: Path | None = None, sim_settings: dict | None = None,
+             fit_settings: dict | None = None) -> dict:
     """One case: the 3-D truth recording (kept in and reused from ``recordings``), then the fit with and without
-    the slice correction, both resolutions with ``sim_settings``."""
+    the slice correction, both resolutions with ``sim_settings``, the fit with ``fit_settings``."""
     import torch
 
     from diffstir.identification import identify
@@ -171,11 +176,11 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
     law = FLUIDS[fluid_name][1]
     recording, truth, truth_seconds = lab_recording(index, case, recordings)
     fine, coarse = sim_config("slice2d", sim_settings), sim_config("coarse2d", sim_settings)
-    row = case_row(case, truth, truth_seconds, sim_settings)
+    row = case_row(case, truth, truth_seconds, sim_settings, fit_settings)
     for corrected in (True, False):
         t0 = time.perf_counter()
         result = identify(recording, (law["name"],), config=fine, coarse=coarse, baseline=False, size_estimate=False,
-                          progress=False, fit=FitSettings(slice_correction=corrected))
+                          progress=False, fit=FitSettings(**{**(fit_settings or {}), "slice_correction": corrected}))
         summary = result.summary()
         fitted = summary["laws"][law["name"]]
         apparent = summary["apparent_viscosity"]
@@ -222,7 +227,7 @@ def true_class(fluid_name: str, band: tuple[float, float], shear_rate: float) ->
 
 
 def run_selection_case(index: int, case: str, recordings: Path | None = None,
-                       sim_settings: dict | None = None) -> dict:
+                       sim_settings: dict | None = None, fit_settings: dict | None = None) -> dict:
     """One case fitted as ``diffstir-fit`` does, with every law of conf/fit.yaml's ``model`` and the BIC's
     selection (the corotated baseline, which takes no part in it, and the size estimate, beside the fits, left
     out): the selected law, its class over the probed shear rates against the truth's, the report's apparent
@@ -237,14 +242,15 @@ def run_selection_case(index: int, case: str, recordings: Path | None = None,
     models = yaml.safe_load((CONF / "fit.yaml").read_text())["model"]
     started = time.perf_counter()
     result = identify(recording, models, config=sim_config("slice2d", sim_settings),
-                      coarse=sim_config("coarse2d", sim_settings), baseline=False, size_estimate=False, progress=False)
+                      coarse=sim_config("coarse2d", sim_settings), baseline=False, size_estimate=False, progress=False,
+                      fit=FitSettings(**(fit_settings or {})))
     summary = result.summary()
     apparent = summary["apparent_viscosity"]
     rate = apparent["effective_shear_rate"]
     eta_true = true_viscosity(fluid_name, rate)
     lo, hi = apparent["at_effective_shear_rate_ci95"]
     band = summary["shear_rate_range"]
-    return {**case_row(case, truth, truth_seconds, sim_settings), "models": models,
+    return {**case_row(case, truth, truth_seconds, sim_settings, fit_settings), "models": models,
             "selection": {
                 "selected": summary["selected"], "class": (summary["family"] or {}).get("class"),
                 "true_class": true_class(fluid_name, band, rate) if band[1] > band[0] > 0 else None,
@@ -314,19 +320,21 @@ def compare(case: str, sim_settings: dict | None = None,
 def _attempt(job: tuple) -> tuple[str, dict | None, str]:
     """``run_case`` (``run_selection_case`` for ``--models default``) in a worker: (case, row, "") or (case, None,
     the error) so that one failure stops no other."""
-    index, case, recordings, sim_settings, models = job
+    index, case, recordings, sim_settings, fit_settings, models = job
     run = run_selection_case if models == "default" else run_case
     try:
-        return case, run(index, case, recordings, sim_settings), ""
+        return case, run(index, case, recordings, sim_settings, fit_settings), ""
     except Exception as error:
         return case, None, f"{type(error).__name__}: {error}"
 
 
-def _number_or_text(value: str) -> float | str:
-    try:
-        return float(value)
-    except ValueError:
-        return value
+def _number_or_text(value: str) -> int | float | str:
+    for kind in (int, float):
+        try:
+            return kind(value)
+        except ValueError:
+            pass
+    return value
 
 
 def _holds(interval, value: float) -> bool:
@@ -477,6 +485,8 @@ def main() -> None:
     parser.add_argument("--sim", nargs="+", default=[], metavar="KEY=VALUE",
                         help="SimConfig settings for both fit resolutions, e.g. compressibility=0.003 or "
                         "pressure=projection")
+    parser.add_argument("--fit", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="FitSettings for every fit (conf/fit.yaml's fit block), e.g. fine_iterations=8")
     parser.add_argument("--models", choices=("own", "default"), default="own",
                         help="own: each fluid's own law, with and without the slice correction (default); default: "
                         "conf/fit.yaml's laws and the BIC's selection among them")
@@ -487,6 +497,11 @@ def main() -> None:
                         help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
     args = parser.parse_args()
     sim_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.sim)}
+    fit_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.fit)}
+    try:  # an unknown or invalid setting is refused before any simulation
+        FitSettings(**fit_settings)
+    except (TypeError, ValueError) as error:
+        sys.exit(f"--fit {' '.join(args.fit)}: {error}")
     if args.compare:
         windows = [tuple(float(x) for x in w.split(":")) for w in args.windows]
         print(compare(args.compare, sim_settings, windows))
@@ -508,7 +523,7 @@ def main() -> None:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # end the workers too (the pool's terminate below)
     pool = get_context("spawn").Pool(max(1, args.jobs), maxtasksperchild=1)
     try:
-        for case, row, error in pool.imap_unordered(_attempt, [(i, c, args.recordings, sim_settings,
+        for case, row, error in pool.imap_unordered(_attempt, [(i, c, args.recordings, sim_settings, fit_settings,
                                                                  args.models) for i, c in todo]):
             if row is None:
                 print(f"{case}: failed: {error}", flush=True)
