@@ -20,7 +20,8 @@ three speeds inside the fitted 1.5 s and a fourth in the held-out 0.5 s.
     python scripts/truth3d_benchmark.py --models default --recordings outputs/truth3d --out /tmp/s.json --jobs 2
     python scripts/truth3d_benchmark.py --table docs/data/truth3d.json            # the markdown tables only
     python scripts/truth3d_benchmark.py --compare project/newtonian_0.1           # where the forces differ
-    python scripts/truth3d_benchmark.py --compare project/power_law_0.6 --windows 0.2:0.5 0.7:1 1.2:1.5
+    python scripts/truth3d_benchmark.py --compare held_out/power_law_1.3 \\
+        --windows 0.3:0.5 0.5:0.7 0.8:1 1:1.2 1.3:1.5 1.7:2
 ``--compare RIG/FLUID`` locates a mismatch: the rod's force over the case's stir in the frame turning with it
 (drag against the motion, radial outwards; means over windows) from the 3-D finite elements, the same elements'
 2-D slab times the immersion, and the fitting simulator's 2-D slice (sim=slice2d with ``--sim``) times the
