@@ -329,7 +329,9 @@ def _attempt(job: tuple) -> tuple[str, dict | None, str]:
         return case, None, f"{type(error).__name__}: {error}"
 
 
-def _number_or_text(value: str) -> int | float | str:
+def _number_or_text(value: str) -> bool | int | float | str:
+    if value.lower() in ("true", "false"):
+        return value.lower() == "true"
     for kind in (int, float):
         try:
             return kind(value)
