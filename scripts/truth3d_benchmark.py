@@ -127,10 +127,9 @@ def lab_recording(index: int, case: str, recordings: Path | None = None):
     kept = recordings / case.replace("/", "_") if recordings else None
     if kept is not None and kept.exists():
         recording = load_recording(kept)
-        path = np.interp(recording.t, trajectory.t, trajectory.xy[:, 0]), np.interp(recording.t, trajectory.t,
-                                                                                    trajectory.xy[:, 1])
+        path = trajectory.poses(recording.t)[0]
         if not (abs(recording.duration - trajectory.t[-1]) < 0.05
-                and np.allclose(path, (recording.x, recording.y), atol=1e-4)):
+                and np.allclose(path, np.stack([recording.x, recording.y], axis=-1), atol=1e-4)):
             sys.exit(f"{kept}: kept for another stir than this benchmark's programme for {case}; remove it or "
                      "choose another --recordings")
         return recording, json.loads(truth_path(kept).read_text()), time.perf_counter() - started
@@ -329,6 +328,11 @@ def _attempt(job: tuple) -> tuple[str, dict | None, str]:
         return case, None, f"{type(error).__name__}: {error}"
 
 
+def _settings(items: list[str]) -> dict:
+    """``KEY=VALUE`` items as a dict, each value a boolean, a number or text."""
+    return {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in items)}
+
+
 def _number_or_text(value: str) -> bool | int | float | str:
     if value.lower() in ("true", "false"):
         return value.lower() == "true"
@@ -499,8 +503,7 @@ def main() -> None:
     parser.add_argument("--compare", choices=CASES, metavar="RIG/FLUID",
                         help="print where the forces of the truth, the slab and the fitting simulator differ, and exit")
     args = parser.parse_args()
-    sim_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.sim)}
-    fit_settings = {k: _number_or_text(v) for k, _, v in (item.partition("=") for item in args.fit)}
+    sim_settings, fit_settings = _settings(args.sim), _settings(args.fit)
     try:  # an unknown or invalid setting is refused before any simulation
         FitSettings(**fit_settings)
     except (TypeError, ValueError) as error:

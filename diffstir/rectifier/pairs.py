@@ -300,14 +300,15 @@ def _group(design, shard, path, trajectory, density, physics, truth_config, esti
     """The group's ladder and effective shear rates, simulated once and kept in ``path``, with the truth's
     numerics: a group kept for another truth is refused (its sample times and its pairs are that truth's)."""
     group = json.loads(path.read_text()) if path.exists() else {}
-    if group.get("truth", truth_config.numerics()) != truth_config.numerics():
-        raise ValueError(f"{path}: made for another truth ({group['truth']}, not {truth_config.numerics()}); use "
-                         "another out directory")
+    truth = truth_config.numerics()
+    if group.get("truth", truth) != truth:
+        raise ValueError(f"{path}: made for another truth ({group['truth']}, not {truth}); use another out "
+                         "directory")
     # groups written before group digests existed carry the whole design's digest
     same_group = group.get("group_digest", group.get("design")) in (design.group_digest(), design.digest())
     if same_group and group.get("shear_rate_method") == SHEAR_RATE_METHOD:
         if group.get("group_digest") != design.group_digest() or "truth" not in group:
-            group.update(group_digest=design.group_digest(), truth=truth_config.numerics())
+            group.update(group_digest=design.group_digest(), truth=truth)
             path.write_text(json.dumps(group))
         return group
     started = time.perf_counter()
@@ -325,7 +326,7 @@ def _group(design, shard, path, trajectory, density, physics, truth_config, esti
     else:
         ladder = ViscosityLadder.simulate(problem)
     rates = {str(eta): effective_shear_rate(problem, eta) for eta in RATE_PROBES}
-    group = {"design": design.digest(), "group_digest": design.group_digest(), "truth": truth_config.numerics(),
+    group = {"design": design.digest(), "group_digest": design.group_digest(), "truth": truth,
              "shard": shard, "density": density,
              "programme": dict(design.group(shard)[0]),
              "ladder": {"viscosities": list(ladder.viscosities), "mean_abs": list(ladder.mean_abs)},
