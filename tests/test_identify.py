@@ -16,7 +16,7 @@ from diffstir.fitting.initial import (YIELD_SHARES, ViscosityLadder, effective_s
                                       newtonian_embedding)
 from diffstir.fitting.models import FitModel
 from diffstir.fitting.nuisance import lag_response
-from diffstir.fitting.optimise import FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
+from diffstir.fitting.optimise import CONVERGED_STEP, FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
 from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.fitting.selection import averaged_interval, bic, bic_weights, select
 from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
@@ -171,6 +171,32 @@ def test_gauss_newton_converges_from_a_factor_two_whatever_the_units(eta_true):
     assert fit.model.params_si()["eta"] == pytest.approx(best, rel=0.01)
 
 
+class _NoisySinusoidProblem(_PhaseShiftedProblem):
+    """A stand-in whose reading is η times a sinusoid [N], measured with white noise of ``noise`` [N]."""
+
+    def __init__(self, eta_true: float, noise: float, seed: int = 0):
+        super().__init__(eta_true)
+        self.shape = np.sin(2 * np.pi * self.times)
+        self.measured = eta_true * self.shape + np.random.default_rng(seed).normal(0.0, noise, self.times.size)
+
+    def simulate(self, law):
+        return torch.as_tensor(float(law(torch.ones(1, dtype=torch.float64))) * self.shape)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_gauss_newton_stops_once_its_next_step_is_a_tenth_of_a_standard_error(seed):
+    # the reading is linear in η, so the least-squares optimum is η̂ = m·s / s·s and its standard error in ln η is
+    # σ / (η̂ |s|); from a factor two off, the fit must stop short of its budget within a tenth of it
+    problem = _NoisySinusoidProblem(1.0, noise=0.02, seed=seed)
+    fit = fit_model(problem, FitModel.named("newtonian", eta=2.0), max_iterations=30)
+    best = float(problem.measured @ problem.shape / (problem.shape @ problem.shape))
+    residuals = problem.measured - best * problem.shape
+    standard_error = laplace(fit.model, np.log([best]), (best * problem.shape)[:, None], residuals).standard_error()[0]
+    assert fit.converged and fit.evaluations < 30 and "standard errors" in fit.message
+    # soft-L1 and least squares share the optimum here: the residuals lie well within the cost's scale
+    assert abs(fit.theta[0] - math.log(best)) <= CONVERGED_STEP * standard_error
+
+
 class _TwoWindowProblem(_PhaseShiftedProblem):
     """A stand-in whose reading is η times a sinusoid [N], measured with 1 mN of noise in its first second and
     0.3 N in its second (a window whose readings the simulator cannot predict), weighed by ``weights``."""
@@ -253,7 +279,18 @@ def test_yield_stress_laws_start_as_a_paste_and_as_a_liquid():
     assert shares == pytest.approx(list(YIELD_SHARES), rel=1e-5)
     for m in starts:  # every start reads like the Newtonian fit at the effective shear rate
         assert float(m.material(torch.tensor([rate], dtype=torch.float64)).detach()) == pytest.approx(eta_n, rel=1e-5)
-    assert len(initial_models("carreau", eta_n, rate)) == 1
+
+
+@pytest.mark.parametrize("name", ["power_law", "carreau", "cross"])
+def test_a_law_without_a_yield_stress_starts_from_its_typical_shape_and_as_the_newtonian_fluid(name):
+    eta_n, rate = 0.7, 4.0  # Pa s, 1/s
+    shaped, embedded = initial_models(name, eta_n, rate)
+    assert shaped.params_si()["n"] != pytest.approx(1.0) and embedded.params_si()["n"] == pytest.approx(1.0)
+    rates = torch.tensor([rate / 10, rate, rate * 10], dtype=torch.float64)
+    assert embedded.material(rates).detach().numpy() == pytest.approx(eta_n, rel=1e-2)
+    # the typical shape reads η_N at γ̇_eff, within the 0.1 % that an η_∞ of 1e-3 η_N can add
+    assert float(shaped.material(rates[1:2]).detach()) == pytest.approx(eta_n, rel=1e-3)
+    assert len(initial_models("newtonian", eta_n, rate)) == 1
 
 
 @pytest.mark.parametrize("name", ["power_law", "carreau", "cross", "herschel_bulkley", "bingham"])

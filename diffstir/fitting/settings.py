@@ -26,8 +26,8 @@ class FitSettings:
         holdout_fraction: the last fraction of the window held out of the fit [1], in [0, 1).
         max_iterations: Gauss-Newton iterations (``lm``) or Adam steps (``adam``) per law on the coarse stage, or on
             the only stage.
-        fine_iterations: simulations per law on the fine stage after the coarse one (two more for a one-parameter
-            law).
+        fine_iterations: the most simulations per law on the fine stage after the coarse one (two more for a
+            one-parameter law); a fit stops sooner once it has converged (``optimise.CONVERGED_STEP``).
         optimizer: ``"lm"`` (trust-region Gauss-Newton on the soft-L1 cost) or ``"adam"`` (the paper's).
         selection: ``"bic"``, ``"holdout"`` or ``"loss"`` (the paper's lowest loss) (``selection``).
         sensor_nuisance: sensor parameters profiled out of every fit, of ``"lag"`` and ``"offset"`` (needs ``lm``).
@@ -41,7 +41,7 @@ class FitSettings:
     window: float | None = 2.0
     holdout_fraction: float = 0.25
     max_iterations: int = 6
-    fine_iterations: int = 2
+    fine_iterations: int = 6
     optimizer: str = "lm"
     selection: str = "bic"
     sensor_nuisance: list[str] = field(default_factory=list)

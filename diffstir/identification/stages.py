@@ -146,7 +146,7 @@ class Plan:
                 models.append(newtonian_embedding(name, eta, self.shear_rate))
         elif name == "newtonian":
             models = [FitModel.named("newtonian", eta=self.ladder_estimate)]
-        else:  # a yield-stress law has two starts, a liquid and a paste: both are fitted, the lower loss kept
+        else:  # every start of initial_models is fitted and the lowest loss kept
             eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
             models = initial_models(name, eta, self.shear_rate, dt=dt)
         problem = self._problem(index, name)
