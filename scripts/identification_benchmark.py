@@ -249,8 +249,10 @@ def main() -> None:
     parser.add_argument("--law-truth-dx", type=float, default=0.004, help="m, the law part's truth cells")
     parser.add_argument("--law-fine", action="store_true",
                         help="law part: fit coarse-to-fine (coarse2d, then slice2d) as diffstir-fit does")
-    parser.add_argument("--iterations", type=int, default=6, help="Gauss-Newton iterations per law")
-    parser.add_argument("--fine-iterations", type=int, default=2, help="Broyden iterations on the fine grid")
+    parser.add_argument("--iterations", type=int, default=FitSettings().max_iterations,
+                        help="the most Gauss-Newton iterations per law (conf/fit.yaml's)")
+    parser.add_argument("--fine-iterations", type=int, default=FitSettings().fine_iterations,
+                        help="the most Broyden iterations on the fine grid (conf/fit.yaml's)")
     parser.add_argument("--sensor", default="paper", help="preset in conf/lab/sensor")
     parser.add_argument("--unstated-response", action="store_true",
                         help="recordings that do not state the sensor's response time: the fit leaves it out")
