@@ -21,6 +21,7 @@ from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.fitting.selection import averaged_interval, bic, bic_weights, select
 from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR, effective_samples, laplace
 from diffstir.identification import identify
+from diffstir.identification.stages import NEWTONIAN_START
 from diffstir.lab import SensorModel
 from diffstir.mpm import SimConfig
 from diffstir.recording import (CupGeometry, Recording, RecordingError, RodGeometry, SensorSpec, sensor_reading_np,
@@ -279,18 +280,7 @@ def test_yield_stress_laws_start_as_a_paste_and_as_a_liquid():
     assert shares == pytest.approx(list(YIELD_SHARES), rel=1e-5)
     for m in starts:  # every start reads like the Newtonian fit at the effective shear rate
         assert float(m.material(torch.tensor([rate], dtype=torch.float64)).detach()) == pytest.approx(eta_n, rel=1e-5)
-
-
-@pytest.mark.parametrize("name", ["power_law", "carreau", "cross"])
-def test_a_law_without_a_yield_stress_starts_from_its_typical_shape_and_as_the_newtonian_fluid(name):
-    eta_n, rate = 0.7, 4.0  # Pa s, 1/s
-    shaped, embedded = initial_models(name, eta_n, rate)
-    assert shaped.params_si()["n"] != pytest.approx(1.0) and embedded.params_si()["n"] == pytest.approx(1.0)
-    rates = torch.tensor([rate / 10, rate, rate * 10], dtype=torch.float64)
-    assert embedded.material(rates).detach().numpy() == pytest.approx(eta_n, rel=1e-2)
-    # the typical shape reads η_N at γ̇_eff, within the 0.1 % that an η_∞ of 1e-3 η_N can add
-    assert float(shaped.material(rates[1:2]).detach()) == pytest.approx(eta_n, rel=1e-3)
-    assert len(initial_models("newtonian", eta_n, rate)) == 1
+    assert len(initial_models("carreau", eta_n, rate)) == 1
 
 
 @pytest.mark.parametrize("name", ["power_law", "carreau", "cross", "herschel_bulkley", "bingham"])
@@ -860,7 +850,9 @@ def test_an_interrupted_start_resumes_from_its_last_iterate_and_finished_starts_
     state = json.loads(checkpoint.read_text())
     done = state["done"]["fit"]
     starts = ["herschel_bulkley/start0", "herschel_bulkley/start1"]  # the paste's and the liquid's
-    assert done["herschel_bulkley"]["theta"] in [done[k]["theta"] for k in starts]
+    # and the Newtonian fluid's, where both ended above the Newtonian fit (stages.NEWTONIAN_START)
+    kept = starts + [key for key in done if key.endswith(f"/{NEWTONIAN_START}")]
+    assert done["herschel_bulkley"]["theta"] in [done[k]["theta"] for k in kept]
     # interrupted while the liquid start was fitted, at its last iterate
     state["running"]["fit"] = {starts[1]: done[starts[1]]["theta"]}
     del done["herschel_bulkley"], done[starts[1]]
@@ -879,9 +871,55 @@ def test_an_interrupted_start_resumes_from_its_last_iterate_and_finished_starts_
     raw = np.log(share / (1.0 - share)).astype(np.float32)
     atol = 2.0 * width * (share * (1.0 - share) * np.spacing(np.abs(raw)) + share * np.finfo(np.float32).eps)
     assert np.all(np.abs(started[0][1] - saved) <= atol), (started[0][1], saved, atol)
-    kept = json.loads(checkpoint.read_text())["done"]["fit"]
-    assert again.fits["herschel_bulkley"].loss == min(again.problem.loss(np.array(kept[k]["predicted"]))
-                                                      for k in starts)
+    finished = json.loads(checkpoint.read_text())["done"]["fit"]
+    assert again.fits["herschel_bulkley"].loss == min(again.problem.loss(np.array(finished[k]["predicted"]))
+                                                      for k in kept)
+
+
+def test_a_first_stage_law_that_ends_above_the_newtonian_fit_is_refitted_from_the_newtonian_fluid(
+        newtonian_recording):
+    import copy
+
+    from diffstir.fitting import FitResult
+    from diffstir.fitting.nuisance import SensorNuisance
+    from diffstir.identification.stages import Plan, Stage
+
+    problem = StirProblem(newtonian_recording, FAST, 1000.0, Windows.of(newtonian_recording, None, 0.25))
+
+    def fitted(job, offset):  # a finished fit whose readings are the measured ones plus ``offset`` [N]: its loss
+        predicted = problem.measured + offset
+        return FitResult(model=job.model, theta=job.model.theta(), predicted=predicted, loss=problem.loss(predicted),
+                         jacobian=np.zeros((predicted.size, job.model.size)), holdout_loss=None)
+
+    def plan(done):
+        return Plan((Stage("fit", problem, 2),), ["newtonian", "power_law"], ladder_estimate=0.8, shear_rate=4.0,
+                    optimizer="lm", sensor=SensorNuisance(()), stage_dt=lambda stage, eta: 1e-3, done=done,
+                    running={})
+
+    for law_loss, fallback in ((0.002, True), (0.0005, False)):  # N: above and below the Newtonian fit's 1 mN
+        done = {}
+        steps = plan(done)
+        [newtonian] = steps.ready()
+        steps.finish(newtonian, fitted(newtonian, 0.001))
+        [shaped] = steps.ready()
+        assert shaped.key == "power_law/start0" and shaped.model.params_si()["n"] != pytest.approx(1.0)
+        steps.finish(shaped, fitted(shaped, law_loss))
+        jobs = steps.ready()
+        if not fallback:
+            assert jobs == [] and steps.fits["fit"]["power_law"].loss == pytest.approx(law_loss)
+            continue
+        [again] = jobs
+        assert again.key == f"power_law/{NEWTONIAN_START}" and "power_law" not in steps.fits["fit"]
+        assert again.model.params_si() == pytest.approx({"k": 0.8, "n": 1.0}, rel=1e-5)  # the Newtonian fit's η
+        steps.finish(again, fitted(again, 0.0005))
+        assert steps.ready() == [] and steps.fits["fit"]["power_law"].loss == pytest.approx(0.0005)
+        # resumed: both starts restored without a job; the Newtonian start run again if it had not finished
+        interrupted = copy.deepcopy(done)
+        del interrupted["fit"]["power_law"]
+        resumed = plan(interrupted)
+        assert resumed.ready() == [] and resumed.fits["fit"]["power_law"].loss == pytest.approx(0.0005)
+        del interrupted["fit"]["power_law"], interrupted["fit"][again.key]  # the resumed plan saved its pick
+        assert [job.key for job in plan(interrupted).ready()] == [again.key]
 
 
 def test_an_inertia_dominated_stir_is_reported_as_such():

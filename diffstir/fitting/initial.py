@@ -188,13 +188,9 @@ def newtonian_embedding(name: str, eta_n: float, shear_rate: float) -> FitModel:
 
 
 def initial_models(name: str, eta_n: float, shear_rate: float, dt: float | None = None) -> list[FitModel]:
-    """The starts of ``name``'s fit from scratch: one per ``YIELD_SHARES`` for a yield-stress law; for another law
-    that contains the Newtonian one, :func:`initial_model`'s typical shape and the Newtonian embedding, so that its
-    fit cannot end above the Newtonian fit (from the thinning shape alone, a thickening fluid's power law ended
-    there after six steps, its index 0.41 below the truth's); one start for the corotated baseline."""
+    """The starts :func:`initial_model` offers for ``name``: one per ``YIELD_SHARES`` for a yield-stress law,
+    one otherwise."""
     if has_yield_stress(name):
         return [initial_model(name, eta_n, shear_rate, dt, share) for share in YIELD_SHARES]
-    if name in ("newtonian", "corotated"):
-        return [initial_model(name, eta_n, shear_rate, dt)]
-    return [initial_model(name, eta_n, shear_rate, dt), newtonian_embedding(name, eta_n, shear_rate)]
+    return [initial_model(name, eta_n, shear_rate, dt)]
 

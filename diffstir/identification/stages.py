@@ -7,6 +7,13 @@ A model's fit on a stage needs (``Plan.inputs_ready``):
 - any other model: the Newtonian fit on the same stage (its start on the first stage, the Newtonian embedding it
   must not end above on a later one).
 
+On the first stage a law that contains the Newtonian one starts from its typical shape (``initial_models``); if
+its kept fit ends above the stage's Newtonian fit, it is fitted once more from its Newtonian embedding
+(``NEWTONIAN_START``) and the lower loss kept, so that no law ends above the law it contains. The embedding is a
+fallback, not a rival start: offered beside the typical shape on every first stage, the coarse grid's lower loss
+chose a sharper Carreau corner on both Carreau fluids of the 3-D-truth benchmark, whose apparent viscosity then read
+24 and 29 % high (docs/accuracy.md).
+
 ``Plan.ready`` returns the fits whose inputs are known as ``FitJob``s, one per start, so that the starts of a
 yield-stress law run side by side too; ``Plan.finish`` records a job's fit and keeps a model's lowest-loss start.
 The checkpoint (``done``, ``running``) holds each finished fit by stage and by job key, and a model's kept fit by
@@ -21,6 +28,10 @@ from typing import Callable
 import numpy as np
 
 from ..fitting import FitJob, FitModel, FitResult, SensorNuisance, StirProblem, initial_models, newtonian_embedding
+
+#: The key suffix of a first-stage fit from the Newtonian embedding, run when a law's kept fit ends above the
+#: stage's Newtonian fit (module docstring).
+NEWTONIAN_START = "newtonian_start"
 
 #: Fine-stage evaluations a one-parameter model (the Newtonian law, the corotated baseline) gets beyond the
 #: stage's iterations: its Broyden steps are secant steps, cheap, and needed where inertia flattens the loss (a
@@ -62,6 +73,7 @@ class Plan:
         self.done, self.running = done, running
         self.fits: dict[str, dict[str, FitResult]] = {stage.name: {} for stage in stages}
         self.starts: dict[tuple[str, str], dict[str, FitResult | None]] = {}  # (stage, model) -> key -> fit
+        self.queued: list[FitJob] = []  # Newtonian starts that ``finish`` asked for, for ``ready`` to hand out
 
     def final(self) -> dict[str, FitResult]:
         """Every model's fit on the last stage, in ``names``' order."""
@@ -97,6 +109,14 @@ class Plan:
                         else:  # one start of several finished before the interruption
                             self.finish(job, restore(name, saved, job.problem, self._dt(index, name)), save=False)
                             restored = restored or name in self.fits[stage.name]
+            while self.queued:
+                job = self.queued.pop()
+                saved = self.done.get(job.stage, {}).get(job.key)
+                if saved is None:
+                    jobs.append(job)
+                else:  # the Newtonian start finished before the interruption
+                    self.finish(job, restore(job.model.name, saved, job.problem, None), save=False)
+                    restored = restored or job.model.name in self.fits[job.stage]
         return jobs
 
     def inputs_ready(self, index: int, name: str) -> bool:
@@ -116,8 +136,25 @@ class Plan:
             self.running.get(job.stage, {}).pop(job.key, None)
         if all(f is not None for f in starts.values()):
             best = min(starts.values(), key=lambda f: f.loss)
+            fallback = self._newtonian_start(job.stage, name, best)
+            if fallback is not None:
+                starts[fallback.key] = None
+                self.queued.append(fallback)
+                return
             self.fits[job.stage][name] = best
             self.done.setdefault(job.stage, {})[name] = serialise(best)
+
+    def _newtonian_start(self, stage_name: str, name: str, best: FitResult) -> FitJob | None:
+        """The first-stage job that fits law ``name`` from its Newtonian embedding, if its kept fit ``best`` ends
+        above the stage's Newtonian fit and it has not run yet (module docstring); None otherwise."""
+        index = next(i for i, stage in enumerate(self.stages) if stage.name == stage_name)
+        key = f"{name}/{NEWTONIAN_START}"
+        newtonian = self.fits[stage_name].get("newtonian")
+        if index > 0 or not _has_embedding(name) or key in self.starts[(stage_name, name)] \
+                or newtonian is None or best.loss <= newtonian.loss:
+            return None
+        model = newtonian_embedding(name, newtonian.model.params_si()["eta"], self.shear_rate)
+        return self._job(index, self.stages[index], key, model, self.stages[index].iterations)
 
     def _dt(self, index: int, name: str) -> float | None:
         """The corotated baseline's step on stage ``index`` [s] (None for the laws, which need none)."""
@@ -149,19 +186,25 @@ class Plan:
         else:  # every start of initial_models is fitted and the lowest loss kept
             eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
             models = initial_models(name, eta, self.shear_rate, dt=dt)
-        problem = self._problem(index, name)
         budget = stage.iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
-        jobs = []
-        for k, model in enumerate(models):
-            key = name if len(models) == 1 else f"{name}/start{k}"
-            last = self.running.get(stage.name, {}).get(key)
-            if last is not None:  # resume the interrupted job from its last iterate
-                model.set_theta(np.array(last))
-            job = FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor,
-                         jacobian=jacobian, readings=readings)
-            job.cost = job.simulations * _steps(problem, model) + self._later_cost(index, name, model)
-            jobs.append(job)
-        return jobs
+        # a first-stage law that may get a Newtonian start keys its own starts apart from its kept fit
+        single = len(models) == 1 and not (index == 0 and _has_embedding(name))
+        return [self._job(index, stage, name if single else f"{name}/start{k}", model, budget, jacobian, readings)
+                for k, model in enumerate(models)]
+
+    def _job(self, index: int, stage: Stage, key: str, model: FitModel, budget: int,
+             jacobian: np.ndarray | None = None, readings: np.ndarray | None = None) -> FitJob:
+        """The job that fits ``model`` on stage ``index`` under ``key``, resumed from the checkpoint's last iterate
+        of that key, with its critical-path cost."""
+        name = model.name
+        problem = self._problem(index, name)
+        last = self.running.get(stage.name, {}).get(key)
+        if last is not None:  # resume the interrupted job from its last iterate
+            model.set_theta(np.array(last))
+        job = FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor,
+                     jacobian=jacobian, readings=readings)
+        job.cost = job.simulations * _steps(problem, model) + self._later_cost(index, name, model)
+        return job
 
     def _later_cost(self, index: int, name: str, model: FitModel) -> float:
         """The simulated steps that the later stages of model ``name`` will spend from ``model`` [steps]: a job
@@ -178,6 +221,12 @@ class Plan:
         step is held fixed there (``_dt``)."""
         problem, dt = self.stages[index].problem, self._dt(index, name)
         return problem if dt is None else problem.with_config(replace(problem.config, dt=dt))
+
+
+def _has_embedding(name: str) -> bool:
+    """Whether law ``name`` contains the Newtonian one as ``newtonian_embedding`` (the laws but the Newtonian
+    one; not the corotated baseline)."""
+    return name not in ("newtonian", "corotated")
 
 
 def _steps(problem: StirProblem, model: FitModel) -> float:
