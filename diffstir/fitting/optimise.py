@@ -313,9 +313,10 @@ def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations:
             jac = broyden(theta)
             y, values = reading(theta)
             record(theta, problem.loss(y))
-            jacobians[np.asarray(step).tobytes()] = weights[:, None] * sensor.projected(
-                lag_response(jac, times, values.get("lag", 0.0)), readings(theta), times, values, train)
-            return jacobians[np.asarray(step).tobytes()]
+            key = np.asarray(step).tobytes()
+            jacobians[key] = weights[:, None] * sensor.projected(lag_response(jac, times, values.get("lag", 0.0)),
+                                                                 readings(theta), times, values, train)
+            return jacobians[key]
 
         def stop_when_converged(intermediate_result):
             step = intermediate_result.x

@@ -147,14 +147,14 @@ class Plan:
     def _newtonian_start(self, stage_name: str, name: str, best: FitResult) -> FitJob | None:
         """The first-stage job that fits law ``name`` from its Newtonian embedding, if its kept fit ``best`` ends
         above the stage's Newtonian fit and it has not run yet (module docstring); None otherwise."""
-        index = next(i for i, stage in enumerate(self.stages) if stage.name == stage_name)
+        first = self.stages[0]
         key = f"{name}/{NEWTONIAN_START}"
         newtonian = self.fits[stage_name].get("newtonian")
-        if index > 0 or not _has_embedding(name) or key in self.starts[(stage_name, name)] \
+        if stage_name != first.name or not _has_embedding(name) or key in self.starts[(stage_name, name)] \
                 or newtonian is None or best.loss <= newtonian.loss:
             return None
         model = newtonian_embedding(name, newtonian.model.params_si()["eta"], self.shear_rate)
-        return self._job(index, self.stages[index], key, model, self.stages[index].iterations)
+        return self._job(0, first, key, model, first.iterations)
 
     def _dt(self, index: int, name: str) -> float | None:
         """The corotated baseline's step on stage ``index`` [s] (None for the laws, which need none)."""
@@ -176,7 +176,7 @@ class Plan:
                 mu = start.model.params_si()["shear_modulus"]
                 model = FitModel.named(name, dt=dt, shear_modulus=mu * start.model.dt / dt)
             models = [model]
-            if name != "newtonian" and not start.model.is_baseline:
+            if _has_embedding(name):
                 # and from the stage's Newtonian fit, which the law contains: two Broyden steps from the coarse
                 # optimum alone left Carreau above it (docs/benchmarks.md)
                 eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
