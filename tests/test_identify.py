@@ -678,9 +678,10 @@ def test_progress_counts_simulations_against_an_estimate_revised_as_fits_finish(
     loss is the best so far of the law (no simulation: the tracker's arithmetic)."""
     from diffstir.fitting.progress import Progress, fit_simulations
 
-    assert fit_simulations(4, 6, reuses_jacobian=False) == 6 + 2 * 4  # start, 4 columns, steps, final Jacobian
-    assert fit_simulations(4, 2, reuses_jacobian=True) == 3
-    progress = Progress({"start": 9, "fit/newtonian": fit_simulations(1, 6, False), "fit/carreau": 14})
+    assert fit_simulations(4, 6, differences=2) == 6 + 2 * 4  # start and steps, 4 columns at the start and the fit
+    assert fit_simulations(4, 2, differences=1) == 6  # 4 columns at the start, the Broyden matrix at the fit
+    assert fit_simulations(1, 4, differences=0) == 4  # a coarser stage's Jacobian, secant steps
+    progress = Progress({"start": 9, "fit/newtonian": fit_simulations(1, 6, 2), "fit/carreau": 14})
     assert (progress.done, progress.total) == (0, 9 + 8 + 14)
     for _ in range(9):
         progress.evaluation("start")

@@ -209,11 +209,11 @@ def joint_simulations(name: str, iterations: int) -> int:
     with ``iterations``: its start screen (``index_starts``), its first fit, for a yield-stress law the paste
     screen, the paste's fit and the start from the best liquid fit, and the polish."""
     model = FitModel.named(name)
-    count = (1 + len(INDEX_SHIFTS) if "n" in model.names else 1) + fit_simulations(model.size, iterations, False)
+    count = (1 + len(INDEX_SHIFTS) if "n" in model.names else 1) + fit_simulations(model.size, iterations, 2)
     if has_yield_stress(name):
-        count += (len(PASTE_SHARES) + 1 + fit_simulations(model.size, iterations, False)
-                  + fit_simulations(model.size, LIQUID_START_ITERATIONS, False))
-    return count + fit_simulations(model.size, POLISH_ITERATIONS, False)
+        count += (len(PASTE_SHARES) + 1 + fit_simulations(model.size, iterations, 2)
+                  + fit_simulations(model.size, LIQUID_START_ITERATIONS, 2))
+    return count + fit_simulations(model.size, POLISH_ITERATIONS, 2)
 
 
 def joint_fit(points: list[ViscosityPoint], shear_rates: np.ndarray, config: SimConfig, density: float,

@@ -29,6 +29,7 @@ from .models import FitModel
 from .nuisance import SensorNuisance
 from .optimise import FitResult, Readings, fit_model
 from .problem import FitProblem, StirProblem
+from .progress import fit_simulations
 
 
 @dataclass
@@ -39,7 +40,10 @@ class FitJob:
         stage: the stage's name (``"fit"``, ``"coarse"``, ``"fine"``).
         key: the checkpoint's name for the job: the model's name, or ``name/start<k>`` for one of its starts.
         budget: the optimiser's iterations (``fit_model``'s ``max_iterations``).
-        jacobian, readings: a coarser stage's Jacobian and readings at the start (coarse-to-fine), or None.
+        jacobian, readings: a coarser stage's Jacobian and readings at the start (coarse-to-fine), or None: a
+            Jacobian by forward differences at the start.
+        recompute_jacobian: the Jacobian reported at the fit is recomputed by forward differences (None: unless
+            ``jacobian`` is given; ``fit_model``).
         cost: its expected work and that of the jobs waiting for it, in simulated steps, for ``priority`` (None:
             its own simulations).
     """
@@ -53,6 +57,7 @@ class FitJob:
     sensor: SensorNuisance
     jacobian: np.ndarray | None = None
     readings: np.ndarray | None = None
+    recompute_jacobian: bool | None = None
     cost: float | None = None
 
     def run(self, report: Callable[[tuple], None]) -> FitResult:
@@ -64,13 +69,15 @@ class FitJob:
 
         return fit_model(self.problem, self.model, max_iterations=self.budget, optimizer=self.optimizer,
                          initial_jacobian=self.jacobian, initial_readings=self.readings,
+                         recompute_jacobian=self.recompute_jacobian,
                          on_evaluation=on_evaluation, on_iteration=on_iteration, sensor=self.sensor)
 
     @property
     def simulations(self) -> int:
-        """The simulations it spends at least: a first finite-difference Jacobian (parameters + 1), or its budget
-        where a coarser stage's Jacobian is reused."""
-        return self.budget if self.jacobian is not None else self.model.size + 1
+        """The simulations it spends at most: its budget, and the parameters' forward differences at the start
+        where no coarser stage's Jacobian is reused and at the fit where it is recomputed."""
+        recompute = self.jacobian is None if self.recompute_jacobian is None else self.recompute_jacobian
+        return fit_simulations(self.model.size, self.budget, (self.jacobian is None) + recompute)
 
     @property
     def priority(self) -> tuple[bool, float]:

@@ -156,8 +156,8 @@ class Readings:
 class _BroydenJacobian:
     """The Jacobian by forward differences at the first point, then by Broyden's rank-one updates from each step's
     change of readings, J += (Δf - J Δθ) Δθᵀ / (Δθᵀ Δθ): one forward simulation per iteration instead of k + 1.
-    The final Jacobian, used for the uncertainty, is recomputed by finite differences unless the fit started from a
-    coarser simulation's Jacobian.
+    The final Jacobian, used for the uncertainty, is this matrix or one recomputed by finite differences
+    (``fit_model``'s ``recompute_jacobian``).
 
     Steps shorter than ``min_step`` [θ units] in every parameter from the last update's point leave it unchanged
     (``SECANT_FRACTION``).
@@ -236,7 +236,7 @@ def noise_scale(measured: np.ndarray, resolution: float | None) -> float:
 
 def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations: int = 6, optimizer: str = "lm",
               learning_rate: float = 0.05, initial_jacobian: np.ndarray | None = None,
-              initial_readings: np.ndarray | None = None,
+              initial_readings: np.ndarray | None = None, recompute_jacobian: bool | None = None,
               on_evaluation: Callable[[str, int, float], None] | None = None,
               on_iteration: Callable[[MaterialParameters, int, float, np.ndarray], None] | None = None,
               sensor: SensorNuisance = NO_NUISANCE) -> FitResult:
@@ -252,6 +252,9 @@ def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations:
             no finite differences are spent at this resolution.
         initial_readings: that coarser simulation's readings [N] at the starting θ, (M,): the coarse Jacobian is
             scaled by the ratio of this simulation's readings to them (``_BroydenJacobian``).
+        recompute_jacobian: report the Jacobian recomputed by forward differences at the fit (k simulations); False
+            reports the Broyden matrix updated along the fit's steps. None: recomputed unless ``initial_jacobian``
+            is given.
         sensor: the sensor nuisances profiled out at every θ (``nuisance``; ``lm`` only).
         on_evaluation: called after each forward simulation with (model name, count, loss [N]).
         on_iteration: called after each iteration with (model, iteration, loss [N], θ), e.g. to checkpoint.
@@ -343,7 +346,9 @@ def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations:
     theta = np.clip(np.asarray(best, dtype=np.float64), model.lower, model.upper)
     model.set_theta(theta)
     predicted, values = reading(theta)
-    jac = readings.jacobian(theta) if initial_jacobian is None or optimizer != "lm" else broyden(theta)
+    if recompute_jacobian is None:
+        recompute_jacobian = initial_jacobian is None
+    jac = readings.jacobian(theta) if recompute_jacobian or optimizer != "lm" else broyden(theta)
     return FitResult(model=model, theta=theta, predicted=predicted,
                      jacobian=lag_response(jac, times, values.get("lag", 0.0)), loss=problem.loss(predicted),
                      holdout_loss=problem.loss(predicted, train=False),

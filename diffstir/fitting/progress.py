@@ -8,9 +8,9 @@ on a stage is one task until its jobs are handed out, then one per job (``expect
 tasks of the larger of what each is expected to spend and what it has spent; a finished task counts what it spent,
 so a fit that converges early lowers the total and one that needs more raises it.
 
-A fit from its own finite-difference Jacobian spends about ``budget + 2k`` simulations (k parameters): the start,
-k columns, one per accepted or rejected step, and k columns again for the final Jacobian; a fit that starts from a
-coarser stage's Jacobian spends about its budget and one more (``fit_simulations``).
+A fit spends about its budget (the start and one simulation per accepted or rejected step) and k more for each
+Jacobian it computes by forward differences (k parameters): at the start unless it reuses a coarser stage's, and at
+the fit unless it reports its Broyden matrix (``fit_simulations``).
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ import time
 from pathlib import Path
 
 
-def fit_simulations(size: int, budget: int, reuses_jacobian: bool) -> int:
-    """The simulations a fit of ``size`` parameters with ``budget`` optimiser evaluations is expected to spend
-    (module docstring)."""
-    return budget + 1 if reuses_jacobian else budget + 2 * size
+def fit_simulations(size: int, budget: int, differences: int) -> int:
+    """The simulations a fit of ``size`` parameters with ``budget`` optimiser evaluations and ``differences``
+    forward-difference Jacobians (0, 1 or 2) is expected to spend (module docstring)."""
+    return budget + differences * size
 
 
 class Progress:

@@ -26,8 +26,9 @@ class FitSettings:
         holdout_fraction: the last fraction of the window held out of the fit [1], in [0, 1).
         max_iterations: Gauss-Newton iterations (``lm``) or Adam steps (``adam``) per law on the coarse stage, or on
             the only stage.
-        fine_iterations: the most simulations per law on the fine stage after the coarse one (two more for a
-            one-parameter law); a fit stops sooner once it has converged (``optimise.CONVERGED_STEP``).
+        fine_iterations: the most simulations per law on the fine stage after the coarse one, besides the
+            parameters' forward differences at its start there (two more instead for a one-parameter law, which
+            reuses the coarse Jacobian); a fit stops sooner once it has converged (``optimise.CONVERGED_STEP``).
         optimizer: ``"lm"`` (trust-region Gauss-Newton on the soft-L1 cost) or ``"adam"`` (the paper's).
         selection: ``"bic"``, ``"holdout"`` or ``"loss"`` (the paper's lowest loss) (``selection``).
         sensor_nuisance: sensor parameters profiled out of every fit, of ``"lag"`` and ``"offset"`` (needs ``lm``).

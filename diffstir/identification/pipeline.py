@@ -31,7 +31,7 @@ from ..parallel import Workers
 from ..recording import Recording
 from ..rheology import LAWS
 from .checkpoint import Checkpoint, fingerprint, recording_label
-from .stages import SECANT_STEPS, Plan, Stage
+from .stages import Plan, Stage, later_simulations
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
@@ -49,8 +49,9 @@ def identify(recording: Recording, models=DEFAULT_MODELS, *, config: SimConfig, 
         fit: how each law is fitted, its intervals and the selection (``FitSettings``; None: its defaults, those
             of ``diffstir-fit``).
         coarse: a coarser, faster simulation to fit on first (coarse-to-fine): every model is fitted there from
-            scratch, then refined on ``config`` for ``fit.fine_iterations`` Broyden steps that start from the
-            coarse fit and its Jacobian, so the fine resolution costs about one simulation per iteration.
+            scratch, then refined on ``config`` from the coarse fit in at most ``fit.fine_iterations`` simulations
+            after a Jacobian by forward differences there (a one-parameter model reuses the coarse Jacobian and
+            takes two more secant steps; ``stages``).
         density: the fluid's density [kg/m³]; required when the recording has no density block, otherwise the
             Archimedes estimate is used and this is ignored.
         baseline: also fit the paper's corotated baseline.
@@ -182,8 +183,7 @@ class FitRun:
         """Hand out the fits whose inputs are known, and the magnitude estimate once the last stage's Newtonian
         fit is."""
         for ready in plan.ready():
-            self.tracker.expect(f"{ready.stage}/{ready.key}", fit_simulations(ready.model.size, ready.budget,
-                                                                              ready.jacobian is not None),
+            self.tracker.expect(f"{ready.stage}/{ready.key}", ready.simulations,
                                 replaces=f"{ready.stage}/{ready.model.name}")
             pool.submit(ready)
         last = self.stages[-1]
@@ -269,8 +269,9 @@ def _expected_simulations(stages: tuple[Stage, ...], names: list[str], state: di
         for name in names:
             if name not in state["done"].get(stage.name, {}):
                 size = 1 if name == "corotated" else FitModel.named(name).size
-                budget = stage.iterations + (SECANT_STEPS if index > 0 and size == 1 else 0)
-                expected[f"{stage.name}/{name}"] = fit_simulations(size, budget, index > 0)
+                expected[f"{stage.name}/{name}"] = (
+                    later_simulations(stage, size) if index > 0
+                    else fit_simulations(size, stage.iterations, 1 + (len(stages) == 1 or size == 1)))
     if size_estimate and "magnitude" not in state:
         expected["magnitude"] = MAGNITUDE_STEPS + 1
     return expected

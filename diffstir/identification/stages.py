@@ -7,12 +7,20 @@ A model's fit on a stage needs (``Plan.inputs_ready``):
 - any other model: the Newtonian fit on the same stage (its start on the first stage, the Newtonian embedding it
   must not end above on a later one).
 
-On the first stage a law that contains the Newtonian one starts from its typical shape (``initial_models``); if
-its kept fit ends above the stage's Newtonian fit, it is fitted once more from its Newtonian embedding
-(``NEWTONIAN_START``) and the lower loss kept, so that no law ends above the law it contains. The embedding is a
-fallback, not a rival start: offered beside the typical shape on every first stage, the coarse grid's lower loss
-chose a sharper Carreau corner on both Carreau fluids of the 3-D-truth benchmark, whose apparent viscosity then read
-24 and 29 % high (docs/accuracy.md).
+On the first stage a law that contains the Newtonian one starts from its typical shape (``initial_models``); on a
+later stage every model starts from its own fit on the stage before. If a law's kept fit on a stage ends above that
+stage's Newtonian fit, it is fitted once more there from its Newtonian embedding (``NEWTONIAN_START``) and the
+lower loss kept, so that no law ends above the law it contains. The embedding is a fallback, not a rival start:
+offered beside the typical shape on every first stage, the coarse grid's lower loss chose a sharper Carreau corner
+on both Carreau fluids of the 3-D-truth benchmark, whose apparent viscosity then read 24 and 29 % high
+(docs/accuracy.md).
+
+On a later stage a law of several parameters computes its Jacobian there by forward differences at its start and
+then takes Broyden steps from it; the coarse stage's Jacobian misstates how the fine stage's readings trade one
+parameter for another (its flow index against its consistency), and Broyden's updates learn only along the steps
+taken, so from the coarse Jacobian the fine stage stopped well short of its own optimum (docs/identification.md,
+step 5). A one-parameter model (the Newtonian law, the corotated baseline) keeps the coarse Jacobian: its Broyden
+steps are secant steps, exact in one dimension.
 
 ``Plan.ready`` returns the fits whose inputs are known as ``FitJob``s, one per start, so that the starts of a
 yield-stress law run side by side too; ``Plan.finish`` records a job's fit and keeps a model's lowest-loss start.
@@ -145,16 +153,16 @@ class Plan:
             self.done.setdefault(job.stage, {})[name] = serialise(best)
 
     def _newtonian_start(self, stage_name: str, name: str, best: FitResult) -> FitJob | None:
-        """The first-stage job that fits law ``name`` from its Newtonian embedding, if its kept fit ``best`` ends
-        above the stage's Newtonian fit and it has not run yet (module docstring); None otherwise."""
-        first = self.stages[0]
+        """The job that fits law ``name`` on stage ``stage_name`` from its Newtonian embedding, if its kept fit
+        ``best`` ends above the stage's Newtonian fit and it has not run yet (module docstring); None otherwise."""
+        index = [stage.name for stage in self.stages].index(stage_name)
         key = f"{name}/{NEWTONIAN_START}"
         newtonian = self.fits[stage_name].get("newtonian")
-        if stage_name != first.name or not _has_embedding(name) or key in self.starts[(stage_name, name)] \
-                or newtonian is None or best.loss <= newtonian.loss:
+        if not _has_embedding(name) or key in self.starts[(stage_name, name)] or newtonian is None \
+                or best.loss <= newtonian.loss:
             return None
         model = newtonian_embedding(name, newtonian.model.params_si()["eta"], self.shear_rate)
-        return self._job(0, first, key, model, first.iterations)
+        return self._job(index, self.stages[index], key, model, self.stages[index].iterations)
 
     def _dt(self, index: int, name: str) -> float | None:
         """The corotated baseline's step on stage ``index`` [s] (None for the laws, which need none)."""
@@ -167,44 +175,50 @@ class Plan:
         """One job per start of model ``name`` on ``stage``."""
         dt = self._dt(index, name)
         start = self.fits[self.stages[index - 1].name][name] if index > 0 else None
-        jacobian = readings = None
         if start is not None:
-            # with a fitted lag the coarse Jacobian is that of the lagged reading while Broyden follows the bare
-            # one: a phase shift of ωτ (0.13 rad at 20 ms and a 1 s period), left to the secant updates
-            model, jacobian, readings = start.model.copy(), start.jacobian, start.simulated_readings
+            model = start.model.copy()
             if start.model.is_baseline:  # keep its apparent viscosity mu * dt across the change of step
                 mu = start.model.params_si()["shear_modulus"]
                 model = FitModel.named(name, dt=dt, shear_modulus=mu * start.model.dt / dt)
             models = [model]
-            if _has_embedding(name):
-                # and from the stage's Newtonian fit, which the law contains: two Broyden steps from the coarse
-                # optimum alone left Carreau above it (docs/benchmarks.md)
-                eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
-                models.append(newtonian_embedding(name, eta, self.shear_rate))
         elif name == "newtonian":
             models = [FitModel.named("newtonian", eta=self.ladder_estimate)]
         else:  # every start of initial_models is fitted and the lowest loss kept
             eta = self.fits[stage.name]["newtonian"].model.params_si()["eta"]
             models = initial_models(name, eta, self.shear_rate, dt=dt)
-        budget = stage.iterations + (SECANT_STEPS if start is not None and models[0].size == 1 else 0)
-        # a first-stage law that may get a Newtonian start keys its own starts apart from its kept fit
-        single = len(models) == 1 and not (index == 0 and _has_embedding(name))
-        return [self._job(index, stage, name if single else f"{name}/start{k}", model, budget, jacobian, readings)
+        # a law that may get a Newtonian start keys its own starts apart from its kept fit
+        single = len(models) == 1 and not _has_embedding(name)
+        return [self._job(index, stage, name if single else f"{name}/start{k}", model, stage.iterations, start)
                 for k, model in enumerate(models)]
 
     def _job(self, index: int, stage: Stage, key: str, model: FitModel, budget: int,
-             jacobian: np.ndarray | None = None, readings: np.ndarray | None = None) -> FitJob:
+             start: FitResult | None = None) -> FitJob:
         """The job that fits ``model`` on stage ``index`` under ``key``, resumed from the checkpoint's last iterate
-        of that key, with its critical-path cost."""
+        of that key, with its critical-path cost. A one-parameter model on a later stage reuses ``start``'s
+        Jacobian (its fit on the stage before) with ``SECANT_STEPS`` more evaluations; a model of several
+        parameters computes its own there and reports its Broyden matrix at the fit (module docstring)."""
         name = model.name
         problem = self._problem(index, name)
+        jacobian = readings = None
+        if start is not None and model.size == 1:
+            # with a fitted lag the coarse Jacobian is that of the lagged reading while Broyden follows the bare
+            # one: a phase shift of ωτ (0.13 rad at 20 ms and a 1 s period), left to the secant updates
+            jacobian, readings, budget = start.jacobian, start.simulated_readings, budget + SECANT_STEPS
         last = self.running.get(stage.name, {}).get(key)
         if last is not None:  # resume the interrupted job from its last iterate
             model.set_theta(np.array(last))
-        job = FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor,
-                     jacobian=jacobian, readings=readings)
+        job = FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor, jacobian=jacobian,
+                     readings=readings, recompute_jacobian=self._recompute_jacobian(index, model))
         job.cost = job.simulations * _steps(problem, model) + self._later_cost(index, name, model)
         return job
+
+    def _recompute_jacobian(self, index: int, model: FitModel) -> bool:
+        """Whether the fit of ``model`` on stage ``index`` recomputes its Jacobian by forward differences at the
+        end: on a lone stage, whose intervals it gives after up to ``iterations`` Broyden updates, and where the
+        next stage reuses it (a one-parameter model); elsewhere the Broyden matrix is reported."""
+        if len(self.stages) == 1:
+            return True
+        return index < len(self.stages) - 1 and model.size == 1
 
     def _later_cost(self, index: int, name: str, model: FitModel) -> float:
         """The simulated steps that the later stages of model ``name`` will spend from ``model`` [steps]: a job
@@ -212,8 +226,7 @@ class Plan:
         cost = 0.0
         for later in range(index + 1, len(self.stages)):
             stage = self.stages[later]
-            budget = stage.iterations + (SECANT_STEPS if model.size == 1 else 0)
-            cost += budget * _steps(self._problem(later, name), model)
+            cost += later_simulations(stage, model.size) * _steps(self._problem(later, name), model)
         return cost
 
     def _problem(self, index: int, name: str) -> StirProblem:
@@ -221,6 +234,13 @@ class Plan:
         step is held fixed there (``_dt``)."""
         problem, dt = self.stages[index].problem, self._dt(index, name)
         return problem if dt is None else problem.with_config(replace(problem.config, dt=dt))
+
+
+def later_simulations(stage: Stage, size: int) -> int:
+    """The simulations a fit of ``size`` parameters spends at most on ``stage``, a stage after the first: its
+    iterations and the secant steps from the stage before's Jacobian for one parameter, its iterations and a
+    Jacobian by forward differences for several (``Plan._job``)."""
+    return stage.iterations + (SECANT_STEPS if size == 1 else size)
 
 
 def _has_embedding(name: str) -> bool:
