@@ -923,6 +923,50 @@ def test_a_first_stage_law_that_ends_above_the_newtonian_fit_is_refitted_from_th
         assert [job.key for job in plan(interrupted).ready()] == [again.key]
 
 
+def test_a_later_stage_fits_a_law_from_its_own_jacobian_and_refits_it_from_the_newtonian_fluid_if_needed(
+        newtonian_recording):
+    """On the fine stage the Newtonian law reuses its coarse Jacobian for secant steps; a law of several
+    parameters starts from its coarse fit alone, with a Jacobian by forward differences there and its Broyden
+    matrix reported at the fit; ending above the fine Newtonian fit, it is refitted there from the Newtonian
+    fluid (stages module docstring)."""
+    from diffstir.fitting import FitResult
+    from diffstir.fitting.nuisance import SensorNuisance
+    from diffstir.identification.stages import SECANT_STEPS, Plan, Stage
+
+    problem = StirProblem(newtonian_recording, FAST, 1000.0, Windows.of(newtonian_recording, None, 0.25))
+
+    def fitted(job, offset):  # as in the test above, with a Jacobian that marks the stage it came from
+        predicted = problem.measured + offset
+        jacobian = np.full((predicted.size, job.model.size), 1.0 if job.stage == "coarse" else 2.0)
+        return FitResult(model=job.model, theta=job.model.theta(), predicted=predicted, loss=problem.loss(predicted),
+                         jacobian=jacobian, holdout_loss=None)
+
+    steps = Plan((Stage("coarse", problem, 3), Stage("fine", problem, 2)), ["newtonian", "power_law"],
+                 ladder_estimate=0.8, shear_rate=4.0, optimizer="lm", sensor=SensorNuisance(()),
+                 stage_dt=lambda stage, eta: 1e-3, done={}, running={})
+    [newtonian] = steps.ready()
+    assert newtonian.recompute_jacobian  # the fine stage reuses it
+    steps.finish(newtonian, fitted(newtonian, 0.001))
+    shaped, fine_newtonian = sorted(steps.ready(), key=lambda job: job.stage)  # coarse, fine
+    assert shaped.key == "power_law/start0" and shaped.jacobian is None
+    assert not shaped.recompute_jacobian  # the fine stage computes its own
+    steps.finish(shaped, fitted(shaped, 0.0005))
+    assert (fine_newtonian.stage, fine_newtonian.budget) == ("fine", 2 + SECANT_STEPS)
+    assert np.all(fine_newtonian.jacobian == 1.0)
+    steps.finish(fine_newtonian, fitted(fine_newtonian, 0.001))
+    [fine_law] = steps.ready()
+    assert (fine_law.stage, fine_law.key, fine_law.budget) == ("fine", "power_law/start0", 2)
+    assert fine_law.jacobian is None and fine_law.recompute_jacobian is False
+    assert fine_law.simulations == 2 + fine_law.model.size
+    np.testing.assert_array_equal(fine_law.model.theta(), shaped.model.theta())
+    steps.finish(fine_law, fitted(fine_law, 0.002))  # above the fine Newtonian fit's 1 mN
+    [again] = steps.ready()
+    assert (again.stage, again.key) == ("fine", f"power_law/{NEWTONIAN_START}") and again.jacobian is None
+    assert again.model.params_si() == pytest.approx({"k": 0.8, "n": 1.0}, rel=1e-5)
+    steps.finish(again, fitted(again, 0.0008))
+    assert steps.ready() == [] and steps.final()["power_law"].loss == pytest.approx(0.0008)
+
+
 def test_an_inertia_dominated_stir_is_reported_as_such():
     """A drag F = F_v + F_i with F_v ∝ η: d F / d ln η = F_v, so the viscous share (J·p)/(p·p) is F_v / F."""
     from types import SimpleNamespace

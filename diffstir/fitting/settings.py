@@ -42,7 +42,7 @@ class FitSettings:
     window: float | None = 2.0
     holdout_fraction: float = 0.25
     max_iterations: int = 6
-    fine_iterations: int = 2
+    fine_iterations: int = 3
     optimizer: str = "lm"
     selection: str = "bic"
     sensor_nuisance: list[str] = field(default_factory=list)
