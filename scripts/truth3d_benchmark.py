@@ -4,9 +4,10 @@ Per case, a rig and a fluid: the virtual lab writes a recording whose force is t
 elements (``lab/sim=fe3d``, conf/lab/sim/fe3d.yaml) read through the paper's sensor (conf/lab/sensor/paper.yaml,
 seed = case index), and the default fit (conf/fit.yaml: coarse2d then slice2d, the first 2 s, model error 0.03)
 identifies it with the fluid's own law, twice: with the slice correction (the default, F'_2D h C) and without it
-(the paper's extruded slice, F'_2D h). Reported per fit: the law's parameters with their 95 % intervals, the
-apparent viscosity at the fit's effective shear rate against the truth's there, the errors and whether the
-intervals hold the truth.
+(the paper's extruded slice, F'_2D h). Reported per fit: the law's parameters with their 95 % intervals, the law's
+apparent viscosity at the fit's effective shear rate against the truth's there, the errors, whether the intervals
+hold the truth, and the law the fit selects (the Newtonian law is always fitted too; where the BIC prefers it,
+``diffstir-fit`` reports its viscosity instead).
 
 Rigs: the project's default (conf/rig/paper.yaml on a 15 mm circle) and the study's ``shallow`` rig, both in the
 slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the study never saw. Fluids: Newtonian
@@ -183,7 +184,7 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
                           progress=False, fit=FitSettings(**{**(fit_settings or {}), "slice_correction": corrected}))
         summary = result.summary()
         fitted = summary["laws"][law["name"]]
-        apparent = summary["apparent_viscosity"]
+        apparent = fitted["apparent_viscosity"]
         rate = apparent["effective_shear_rate"]
         eta_true = true_viscosity(fluid_name, rate)
         lo, hi = apparent["at_effective_shear_rate_ci95"]
@@ -192,7 +193,8 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
             "effective_shear_rate": rate, "eta": apparent["at_effective_shear_rate"], "eta_ci95": [lo, hi],
             "eta_true": eta_true, "error": apparent["at_effective_shear_rate"] / eta_true - 1.0,
             "covered": lo <= eta_true <= hi, "slice_correction": summary["slice_correction"],
-            "viscous_share": summary["resolvable"].get("viscous_share"), "seconds": time.perf_counter() - t0,
+            "viscous_share": summary["resolvable"].get("viscous_share"), "selected": summary["selected"],
+            "seconds": time.perf_counter() - t0,
             **({"n_error": fitted["params"]["n"] - law["params"]["n"],
                 "n_covered": _holds(fitted["ci95"].get("n"), law["params"]["n"])} if "n" in law["params"] else {}),
         }
@@ -362,6 +364,12 @@ def _estimate(fit: dict) -> str:
     return f"{eta:.4g} [open]" if _open(fit) else f"{eta:.4g} [{lo:.4g}, {hi:.4g}]"
 
 
+def _selects(fit: dict, law: str) -> str:
+    """" (N selected)" where the fit selects another law than the fluid's own (the Newtonian one), else ""."""
+    selected = fit.get("selected", law)
+    return "" if selected == law else f" ({SHORT.get(selected, selected)} selected)"
+
+
 def _open(fit: dict) -> bool:
     """Whether the apparent viscosity's interval spans more than the factor ``MAX_FACTOR`` either way."""
     eta, (lo, hi) = fit["eta"], fit["eta_ci95"]
@@ -382,8 +390,9 @@ def table(rows: list[dict]) -> str:
         share = f"{c['viscous_share']:.2f}" if c.get("viscous_share") is not None else "-"
         lines.append(
             f"| {r['rig']} | {r['fluid']} | {c['effective_shear_rate']:.3g} | {share} | {c['eta_true']:.4g} | "
-            f"{_estimate(c)} | {100 * c['error']:+.1f} % | {_verdict(c)} | {factor:.3f} | "
-            f"{_estimate(s)} | {100 * s['error']:+.1f} % | {_verdict(s)} | {n} | {r['truth_seconds']:.0f} | "
+            f"{_estimate(c)}{_selects(c, r['law']['name'])} | {100 * c['error']:+.1f} % | {_verdict(c)} | "
+            f"{factor:.3f} | {_estimate(s)}{_selects(s, r['law']['name'])} | {100 * s['error']:+.1f} % | "
+            f"{_verdict(s)} | {n} | {r['truth_seconds']:.0f} | "
             f"{c['seconds']:.0f} + {s['seconds']:.0f} |")
     if rows:
         counts = {k: [_verdict(r[k]) for r in rows] for k in ("corrected", "slice_only")}

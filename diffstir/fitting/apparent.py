@@ -118,7 +118,7 @@ def window_simulations(guessed: bool, iterations: int) -> int:
     viscosity, else one per ladder rung), the Newtonian fit of ``iterations`` and the effective shear rate's
     probes."""
     ladder = 2 if guessed else len(LADDER_VISCOSITIES)
-    return ladder + fit_simulations(1, iterations, False) + SHEAR_RATE_PROBES
+    return ladder + fit_simulations(1, iterations, 2) + SHEAR_RATE_PROBES
 
 
 def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, guess: float | None = None,
