@@ -3,9 +3,9 @@
 A model's fit on a stage needs (``Plan.inputs_ready``):
 
 - the Newtonian law on the first stage: the ladder's estimate only;
-- any model on a later stage: its own fit on the stage before (its start and its Jacobian);
-- any other model: the Newtonian fit on the same stage (its start on the first stage, the Newtonian embedding it
-  must not end above on a later one).
+- any model on a later stage: its own fit on the stage before (its start, and a one-parameter model's Jacobian);
+- any other model: the Newtonian fit on the same stage (its start on the first stage, and on every stage the fit it
+  must not end above).
 
 On the first stage a law that contains the Newtonian one starts from its typical shape (``initial_models``); on a
 later stage every model starts from its own fit on the stage before. If a law's kept fit on a stage ends above that
@@ -37,7 +37,7 @@ import numpy as np
 
 from ..fitting import FitJob, FitModel, FitResult, SensorNuisance, StirProblem, initial_models, newtonian_embedding
 
-#: The key suffix of a first-stage fit from the Newtonian embedding, run when a law's kept fit ends above the
+#: The key suffix of a fit from the Newtonian embedding, run when a law's kept fit on a stage ends above the
 #: stage's Newtonian fit (module docstring).
 NEWTONIAN_START = "newtonian_start"
 
