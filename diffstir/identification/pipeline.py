@@ -23,7 +23,7 @@ import numpy as np
 from ..density import density_estimate
 from ..fitting import (LADDER_VISCOSITIES, MAGNITUDE_STEPS, SHEAR_RATE_PROBES, FitModel, FitResult,
                        FitSettings, Identification, MagnitudeJob, Progress, SensorNuisance, StirProblem, Uncertainty,
-                       ViscosityLadder, Windows, bic, effective_shear_rate, fit_simulations, force_error, laplace,
+                       ViscosityLadder, Windows, bic, effective_shear_rate, force_error, laplace,
                        mean_readings_on, mean_stirring_speed, noise_scale, select)
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
@@ -31,7 +31,7 @@ from ..parallel import Workers
 from ..recording import Recording
 from ..rheology import LAWS
 from .checkpoint import Checkpoint, fingerprint, recording_label
-from .stages import Plan, Stage, later_simulations
+from .stages import Plan, Stage, stage_simulations
 
 DEFAULT_MODELS = ("newtonian", "carreau", "cross", "herschel_bulkley")
 
@@ -269,9 +269,7 @@ def _expected_simulations(stages: tuple[Stage, ...], names: list[str], state: di
         for name in names:
             if name not in state["done"].get(stage.name, {}):
                 size = 1 if name == "corotated" else FitModel.named(name).size
-                expected[f"{stage.name}/{name}"] = (
-                    later_simulations(stage, size) if index > 0
-                    else fit_simulations(size, stage.iterations, 1 + (len(stages) == 1 or size == 1)))
+                expected[f"{stage.name}/{name}"] = stage_simulations(stages, index, size)
     if size_estimate and "magnitude" not in state:
         expected["magnitude"] = MAGNITUDE_STEPS + 1
     return expected

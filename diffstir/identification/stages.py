@@ -18,7 +18,7 @@ on both Carreau fluids of the 3-D-truth benchmark, whose apparent viscosity then
 On a later stage a law of several parameters computes its Jacobian there by forward differences at its start and
 then takes Broyden steps from it; the coarse stage's Jacobian misstates how the fine stage's readings trade one
 parameter for another (its flow index against its consistency), and Broyden's updates learn only along the steps
-taken, so from the coarse Jacobian the fine stage stopped well short of its own optimum (docs/identification.md,
+taken, so from the coarse Jacobian the fine steps fall short of the fine stage's own optimum (docs/identification.md,
 step 5). A one-parameter model (the Newtonian law, the corotated baseline) keeps the coarse Jacobian: its Broyden
 steps are secant steps, exact in one dimension.
 
@@ -35,7 +35,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..fitting import FitJob, FitModel, FitResult, SensorNuisance, StirProblem, initial_models, newtonian_embedding
+from ..fitting import (FitJob, FitModel, FitResult, SensorNuisance, StirProblem, fit_simulations, initial_models,
+                       newtonian_embedding)
 
 #: The key suffix of a fit from the Newtonian embedding, run when a law's kept fit on a stage ends above the
 #: stage's Newtonian fit (module docstring).
@@ -208,25 +209,16 @@ class Plan:
         if last is not None:  # resume the interrupted job from its last iterate
             model.set_theta(np.array(last))
         job = FitJob(stage.name, key, problem, model, budget, self.optimizer, self.sensor, jacobian=jacobian,
-                     readings=readings, recompute_jacobian=self._recompute_jacobian(index, model))
+                     readings=readings, recompute_jacobian=recomputes_jacobian(self.stages, index, model.size))
         job.cost = job.simulations * _steps(problem, model) + self._later_cost(index, name, model)
         return job
-
-    def _recompute_jacobian(self, index: int, model: FitModel) -> bool:
-        """Whether the fit of ``model`` on stage ``index`` recomputes its Jacobian by forward differences at the
-        end: on a lone stage, whose intervals it gives after up to ``iterations`` Broyden updates, and where the
-        next stage reuses it (a one-parameter model); elsewhere the Broyden matrix is reported."""
-        if len(self.stages) == 1:
-            return True
-        return index < len(self.stages) - 1 and model.size == 1
 
     def _later_cost(self, index: int, name: str, model: FitModel) -> float:
         """The simulated steps that the later stages of model ``name`` will spend from ``model`` [steps]: a job
         that others wait for goes first (a critical-path priority)."""
         cost = 0.0
         for later in range(index + 1, len(self.stages)):
-            stage = self.stages[later]
-            cost += later_simulations(stage, model.size) * _steps(self._problem(later, name), model)
+            cost += stage_simulations(self.stages, later, model.size) * _steps(self._problem(later, name), model)
         return cost
 
     def _problem(self, index: int, name: str) -> StirProblem:
@@ -236,11 +228,21 @@ class Plan:
         return problem if dt is None else problem.with_config(replace(problem.config, dt=dt))
 
 
-def later_simulations(stage: Stage, size: int) -> int:
-    """The simulations a fit of ``size`` parameters spends at most on ``stage``, a stage after the first: its
-    iterations and the secant steps from the stage before's Jacobian for one parameter, its iterations and a
-    Jacobian by forward differences for several (``Plan._job``)."""
-    return stage.iterations + (SECANT_STEPS if size == 1 else size)
+def recomputes_jacobian(stages: tuple[Stage, ...], index: int, size: int) -> bool:
+    """Whether a fit of ``size`` parameters on ``stages[index]`` recomputes its Jacobian by forward differences at
+    the end: on a lone stage, whose intervals it gives after up to ``iterations`` Broyden updates, and where the
+    next stage reuses it (a one-parameter model); elsewhere the Broyden matrix is reported."""
+    return len(stages) == 1 or (index < len(stages) - 1 and size == 1)
+
+
+def stage_simulations(stages: tuple[Stage, ...], index: int, size: int) -> int:
+    """The simulations a fit of ``size`` parameters spends at most on ``stages[index]`` (``Plan._job``): on the
+    first stage its iterations and its forward-difference Jacobians; on a later one its iterations and the secant
+    steps from the stage before's Jacobian for one parameter, a Jacobian by forward differences for several."""
+    stage = stages[index]
+    if index > 0:
+        return stage.iterations + (SECANT_STEPS if size == 1 else size)
+    return fit_simulations(size, stage.iterations, 1 + recomputes_jacobian(stages, index, size))
 
 
 def _has_embedding(name: str) -> bool:
