@@ -11,7 +11,7 @@ hold the truth, and the law the fit selects (the Newtonian law is always fitted 
 
 Rigs: the project's default (conf/rig/paper.yaml on a 15 mm circle) and the study's ``shallow`` rig, both in the
 slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the study never saw. Fluids: Newtonian
-from 0.03 to 5 Pa·s at one speed; power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
+from 0.03 to 10 Pa·s at one speed; power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
 three speeds inside the fitted 1.5 s and a fourth in the held-out 0.5 s.
 
     python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
@@ -80,9 +80,19 @@ FLUIDS = {  # name: (density [kg/m³], law, programme)
                 SPEED_STEPS),
     "herschel_bulkley": (1100.0, {"name": "herschel_bulkley", "params": {"tau_y": 1.0, "k": 0.8, "n": 0.6}},
                          SPEED_STEPS),
-}
+    "newtonian_10": (1400.0, {"name": "newtonian", "params": {"eta": 10.0}}, ONE_SPEED),
+}  # a new fluid goes last: a case's sensor seed is its index in CASES
 CASES = [f"{rig}/{fluid}" for fluid in FLUIDS for rig in RIGS]
 RECTIFIER = ROOT / "checkpoints" / "rectifier" / "rectifier.ckpt"
+
+
+def table_order(case: str) -> tuple:
+    """Where ``case`` sits in a table: Newtonian fluids first by viscosity, then the others as in CASES."""
+    if case not in CASES:
+        return (2, 0.0, 0)
+    law = FLUIDS[case.split("/")[1]][1]
+    newtonian = law["name"] == "newtonian"
+    return (0 if newtonian else 1, law["params"]["eta"] if newtonian else 0.0, CASES.index(case))
 
 
 def rig_of(name: str):
@@ -383,7 +393,7 @@ def table(rows: list[dict]) -> str:
     lines = ["| rig | fluid | γ̇_eff [1/s] | e | η true [Pa·s] | η fitted [95 % CI] (corrected) | error | holds | "
              "C | η slice-only [95 % CI] | error | holds | n error (corrected / slice-only) | truth [s] | fits [s] |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(rows, key=lambda r: CASES.index(r["case"]) if r["case"] in CASES else len(CASES)):
+    for r in sorted(rows, key=lambda r: table_order(r["case"])):
         c, s = r["corrected"], r["slice_only"]
         n = (f"{c['n_error']:+.3f} / {s['n_error']:+.3f}" if "n_error" in c else "-")
         factor = c["slice_correction"]["factor"] if c["slice_correction"] else float("nan")
@@ -413,7 +423,7 @@ def selection_table(rows: list[dict]) -> str:
     lines = ["| rig | fluid | γ̇ band [1/s] | true class | selected (BIC weight) | its class | η true [Pa·s] | "
              "η reported [95 % CI] | error | holds | selected law's own CI holds | each law: ΔBIC, η error |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    rows = sorted(rows, key=lambda r: CASES.index(r["case"]) if r["case"] in CASES else len(CASES))
+    rows = sorted(rows, key=lambda r: table_order(r["case"]))
     for r in rows:
         s = r["selection"]
         best = min(fit["bic"] for fit in s["laws"].values())
@@ -464,7 +474,7 @@ def rectifier_table(rows: list[dict]) -> str:
     lines = ["| fluid | cases | refined | before: MAE | RMSE | median | p90 | after: MAE | RMSE | median | p90 | "
              "fitted law: MAE |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     groups: dict[str, list[dict]] = {}
-    for r in sorted(rows, key=lambda r: list(FLUIDS).index(r["fluid"])):
+    for r in sorted(rows, key=lambda r: table_order(r["case"])):
         if "rectifier" in r:
             groups.setdefault(r["fluid"], []).append({**r["rectifier"], "fit_error": r["corrected"]["error"]})
     groups["all"] = [x for entries in list(groups.values()) for x in entries]
