@@ -11,7 +11,7 @@ hold the truth, and the law the fit selects (the Newtonian law is always fitted 
 
 Rigs: the project's default (conf/rig/paper.yaml on a 15 mm circle) and the study's ``shallow`` rig, both in the
 slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the study never saw. Fluids: Newtonian
-from 0.03 to 10 Pa·s at one speed; power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
+from 0.03 to 10 Pa·s at one speed, and 0.1 Pa·s at a quarter of it (``_slow``); power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
 three speeds inside the fitted 1.5 s and a fourth in the held-out 0.5 s.
 
     python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
@@ -62,6 +62,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 RAMP = 0.2  # s
 ONE_SPEED = [{"speed": 0.08, "duration": 2.0}]  # m/s, s
+SLOW = [{"speed": 0.02, "duration": 2.0}]  # m/s, s: a thin fluid stirred as an inertia-dominated report advises
 SPEED_STEPS = [{"speed": s, "duration": 0.5} for s in (0.04, 0.08, 0.16, 0.11)]  # m/s, s: the default fit's
 # first 1.5 s hold three speeds a factor 4 apart; its held-out last 0.5 s, a fourth it never saw between them
 RIGS = {  # cup radius, fill height, cup height, rod radius, immersion depth, circle radius [m]
@@ -81,13 +82,15 @@ FLUIDS = {  # name: (density [kg/m³], law, programme)
     "herschel_bulkley": (1100.0, {"name": "herschel_bulkley", "params": {"tau_y": 1.0, "k": 0.8, "n": 0.6}},
                          SPEED_STEPS),
     "newtonian_10": (1400.0, {"name": "newtonian", "params": {"eta": 10.0}}, ONE_SPEED),
+    "newtonian_0.1_slow": (1100.0, {"name": "newtonian", "params": {"eta": 0.1}}, SLOW),
 }  # a new fluid goes last: a case's sensor seed is its index in CASES
 CASES = [f"{rig}/{fluid}" for fluid in FLUIDS for rig in RIGS]
 RECTIFIER = ROOT / "checkpoints" / "rectifier" / "rectifier.ckpt"
 
 
 def table_order(case: str) -> tuple:
-    """Where ``case`` sits in a table: Newtonian fluids first by viscosity, then the others as in CASES."""
+    """Where ``case`` sits in a table: Newtonian fluids first by viscosity (the faster stir first), then the others
+    as in CASES."""
     if case not in CASES:
         return (2, 0.0, 0)
     law = FLUIDS[case.split("/")[1]][1]
