@@ -650,6 +650,12 @@ def test_report_files(newtonian_identification):
     assert "25 %" in line and f"{100 * result.inertial_error:.0f} % of the inertial part" in line
     held = {**thin, "simulation": {**report["simulation"], "inertial_force_error": 0.0}}
     assert "too narrow" in next(line for line in markdown(held).splitlines() if "inertia-dominated" in line)
+    advised = {**thin, "resolvable": {**thin["resolvable"], "viscous_speed": 0.0267, "floor": 0.005,
+                                      "viscous_speed_change_per_doubling": 0.0031, "viscous_speed_resolves": False}}
+    line = next(line for line in markdown(advised).splitlines() if "inertia-dominated" in line)
+    assert "0.027 m/s or less" in line and "0.0031 N rms" in line and "0.005 N" in line and "finer resolution" in line
+    resolves = {**advised, "resolvable": {**advised["resolvable"], "viscous_speed_resolves": True}}
+    assert "finer resolution" not in next(line for line in markdown(resolves).splitlines() if "inertia-dominated" in line)
 
 
 def test_an_unidentifiable_parameter_is_reported_without_an_interval(newtonian_identification):
@@ -968,22 +974,39 @@ def test_a_later_stage_fits_a_law_from_its_own_jacobian_and_refits_it_from_the_n
 
 
 def test_an_inertia_dominated_stir_is_reported_as_such():
-    """A drag F = F_v + F_i with F_v ∝ η: d F / d ln η = F_v, so the viscous share (J·p)/(p·p) is F_v / F."""
+    """A drag F = F_v + F_i with F_v ∝ η: d F / d ln η = F_v, so the viscous share (J·p)/(p·p) is F_v / F. With
+    F_v ∝ U and F_i ∝ U², the same stir at the advised ``viscous_speed`` has the floor's viscous share, and its
+    change per doubling is the advised one."""
     from types import SimpleNamespace
 
     from diffstir.identification.pipeline import VISCOUS_SHARE_FLOOR, _resolvable
 
     t = np.linspace(0.0, 1.0, 200)
     inertial = 0.02 * np.sin(2 * np.pi * t)  # N
-    problem = SimpleNamespace(train=np.ones(t.size, dtype=bool), measured=0.0 * t,
-                              recording=SimpleNamespace(sensor=SensorSpec(mode="tangential", resolution=0.001,
-                                                                          sample_rate=200)))
+
+    def resolvable_at(speed, viscous_share, resolution=0.001):  # viscous_share at 0.08 m/s
+        problem = SimpleNamespace(train=np.ones(t.size, dtype=bool), measured=0.0 * t,
+                                  velocity=np.stack([0 * t + speed, 0 * t], axis=1),
+                                  recording=SimpleNamespace(sensor=SensorSpec(mode="tangential", resolution=resolution,
+                                                                              sample_rate=200)))
+        viscous = inertial * viscous_share / (1 - viscous_share) * (speed / 0.08)
+        fit = SimpleNamespace(jacobian=viscous[:, None], simulated_readings=viscous + inertial * (speed / 0.08) ** 2)
+        return _resolvable(problem, fit)
+
     for viscous_share in (0.2, 0.9):
-        viscous = inertial * viscous_share / (1 - viscous_share)
-        fit = SimpleNamespace(jacobian=viscous[:, None], simulated_readings=viscous + inertial)
-        resolvable = _resolvable(problem, fit)
+        resolvable = resolvable_at(0.08, viscous_share)
         assert resolvable["viscous_share"] == pytest.approx(viscous_share, rel=1e-12)
         assert resolvable["inertia_dominated"] == (viscous_share < VISCOUS_SHARE_FLOOR)
+        assert ("viscous_speed" in resolvable) == resolvable["inertia_dominated"]
+    advised = resolvable_at(0.08, 0.2)
+    assert advised["viscous_speed"] == pytest.approx(0.08 * 0.2 / 0.8, rel=1e-12)  # f = 1/2: U e / (1 − e)
+    there = resolvable_at(advised["viscous_speed"], 0.2)
+    assert there["viscous_share"] == pytest.approx(VISCOUS_SHARE_FLOOR, rel=1e-9)
+    assert there["reading_change_per_doubling"] == pytest.approx(advised["viscous_speed_change_per_doubling"],
+                                                                 rel=1e-9)
+    # 0.25 × 0.25 × 0.02 ln 2 / √2 = 0.61 mN rms there: above a 0.5 mN resolution, below a 1 mN one
+    assert resolvable_at(0.08, 0.2, resolution=0.0005)["viscous_speed_resolves"]
+    assert not advised["viscous_speed_resolves"]
 
 
 def test_parameter_summary_states_standard_errors_and_correlations():

@@ -69,7 +69,7 @@ def markdown(summary: dict) -> str:
                      + (f"(fit.inertial_error, {100 * inertial:.0f} % of the inertial part) and are wide for that "
                         "reason" if inertial > 0 else "not (fit.inertial_error = 0) and are too narrow for such a "
                         "stir")
-                     + "; stir slower (a lower Reynolds number) to measure a thin fluid")
+                     + "; " + _slower_stir(summary["resolvable"]))
     magnitude = summary.get("magnitude")
     if magnitude is not None:
         lo, hi = magnitude["ci95"]
@@ -153,3 +153,19 @@ def _margin(margin: dict | None) -> str:
         return ""
     return (f"; BIC margin of {margin['best']} over {margin['runner_up']}: {margin['delta_bic']:.1f} "
             f"({margin['evidence']} evidence)")
+
+
+def _slower_stir(resolvable: dict) -> str:
+    """The report's advice for an inertia-dominated stir: the slower mean speed at which the viscous part would be
+    half the reading (F_v ∝ U, F_i ∝ U²), and whether the sensor would still resolve the viscosity there."""
+    speed = resolvable.get("viscous_speed")
+    if speed is None:
+        return "stir slower (a lower Reynolds number) to measure a thin fluid"
+    change = resolvable["viscous_speed_change_per_doubling"]
+    advice = (f"stir slower to measure a thin fluid: at a mean speed of {speed:.2g} m/s or less the viscous part "
+              f"would be half the reading or more (F_v ∝ U, F_i ∝ U²), and doubling η would change the reading by "
+              f"about {change:.2g} N rms")
+    if resolvable["viscous_speed_resolves"]:
+        return advice
+    return advice + (f", below the noise and the sensor's resolution ({resolvable['floor']:.2g} N): a sensor "
+                     "with a finer resolution or less noise is needed to measure this fluid by stirring")

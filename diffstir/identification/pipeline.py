@@ -243,19 +243,31 @@ VISCOUS_SHARE_FLOOR = 0.5
 
 def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
     """Whether the sensor resolves the viscosity: the rms change of the reading for a factor 2 in η, against the
-    reading's noise level (and the sensor's resolution); and the drag's viscous share e = d ln F / d ln η [1], the
-    least-squares slope (J·p)/(p·p) of the Newtonian fit's Jacobian J = d p / d ln η on its readings p. A drag
-    F = F_v + F_i with F_v ∝ η has e = F_v / F; below ``VISCOUS_SHARE_FLOOR`` the stir is inertia-dominated: a
-    relative error ε_i of the simulated inertial part moves ln η by about ε_i (1 − e) / e, which
-    ``uncertainty.laplace`` holds (``inertial_error``)."""
+    larger of the reading's noise level and the sensor's resolution (``floor`` [N]); and the drag's viscous share
+    e = d ln F / d ln η [1], the least-squares slope (J·p)/(p·p) of the Newtonian fit's Jacobian J = d p / d ln η
+    on its readings p. A drag F = F_v + F_i with F_v ∝ η has e = F_v / F; below f = ``VISCOUS_SHARE_FLOOR`` the stir
+    is inertia-dominated: a relative error ε_i of the simulated inertial part moves ln η by about ε_i (1 − e) / e,
+    which ``uncertainty.laplace`` holds (``inertial_error``).
+
+    An inertia-dominated stir also gets the slower stir that would not be: with F_v ∝ U and F_i ∝ U² (a steady stir
+    at mean speed U [m/s]), F_i / F_v = (1 − e) / e scales as U, so the viscous share reaches f at ``viscous_speed``
+    = U e (1 − f) / ((1 − e) f) [m/s], where the change per doubling is the present one times ``viscous_speed`` / U
+    (F_v ∝ U) and ``viscous_speed_resolves`` says whether it stays above ``floor``."""
     jacobian, readings = newtonian.jacobian[problem.train, 0], newtonian.simulated_readings[problem.train]
     change = float(np.sqrt(np.mean((jacobian * math.log(2.0)) ** 2)))
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
     floor = max(noise, problem.recording.sensor.resolution or 0.0)
     norm = float(readings @ readings)
     share = float(jacobian @ readings) / norm if norm > 0 else 0.0
-    return {"viscosity": bool(change > floor), "reading_change_per_doubling": change, "noise": float(noise),
-            "unit": "N", "viscous_share": share, "inertia_dominated": bool(share < VISCOUS_SHARE_FLOOR)}
+    resolvable = {"viscosity": bool(change > floor), "reading_change_per_doubling": change, "noise": float(noise),
+                  "floor": float(floor), "unit": "N", "viscous_share": share,
+                  "inertia_dominated": bool(share < VISCOUS_SHARE_FLOOR)}
+    if 0.0 < share < VISCOUS_SHARE_FLOOR:
+        speed = mean_stirring_speed(problem)
+        ratio = share * (1.0 - VISCOUS_SHARE_FLOOR) / ((1.0 - share) * VISCOUS_SHARE_FLOOR)
+        resolvable.update(viscous_speed=speed * ratio, viscous_speed_change_per_doubling=change * ratio,
+                          viscous_speed_resolves=bool(change * ratio > floor))
+    return resolvable
 
 
 def _expected_simulations(stages: tuple[Stage, ...], names: list[str], state: dict, size_estimate: bool
