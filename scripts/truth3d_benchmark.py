@@ -62,7 +62,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 RAMP = 0.2  # s
 ONE_SPEED = [{"speed": 0.08, "duration": 2.0}]  # m/s, s
-SLOW = [{"speed": 0.02, "duration": 2.0}]  # m/s, s: a thin fluid stirred as an inertia-dominated report advises
+SLOW = [{"speed": 0.02, "duration": 7.2}]  # m/s, s: a thin fluid stirred as an inertia-dominated report advises,
+# for one turn of the widest circle, which a recording spans (diffstir.recording.validate); the fit takes its first 2 s
 SPEED_STEPS = [{"speed": s, "duration": 0.5} for s in (0.04, 0.08, 0.16, 0.11)]  # m/s, s: the default fit's
 # first 1.5 s hold three speeds a factor 4 apart; its held-out last 0.5 s, a fourth it never saw between them
 RIGS = {  # cup radius, fill height, cup height, rod radius, immersion depth, circle radius [m]
