@@ -208,7 +208,8 @@ def run_case(index: int, case: str, recordings: Path | None = None, sim_settings
             "eta_true": eta_true, "error": apparent["at_effective_shear_rate"] / eta_true - 1.0,
             "covered": lo <= eta_true <= hi, "slice_correction": summary["slice_correction"],
             "viscous_share": summary["resolvable"].get("viscous_share"),
-            "viscous_speed": summary["resolvable"].get("viscous_speed"), "selected": summary["selected"],
+            "viscous_speed": summary["resolvable"].get("viscous_speed"), "resolvable": summary["resolvable"],
+            "selected": summary["selected"],
             "seconds": time.perf_counter() - t0,
             **({"n_error": fitted["params"]["n"] - law["params"]["n"],
                 "n_covered": _holds(fitted["ci95"].get("n"), law["params"]["n"])} if "n" in law["params"] else {}),
@@ -395,7 +396,8 @@ def _open(fit: dict) -> bool:
 def table(rows: list[dict]) -> str:
     """The markdown table of ``rows``: per case the corrected fit and the slice-only one, and the reading's viscous
     share e of the corrected fit (the report's ``resolvable.viscous_share``) with, where it is below one half, the
-    slower mean speed the report advises (``resolvable.viscous_speed``)."""
+    slower mean speed the report advises (``resolvable.viscous_speed``; "unresolved" where the report says the sensor
+    would not resolve the viscosity there)."""
     lines = ["| rig | fluid | γ̇_eff [1/s] | e | η true [Pa·s] | η fitted [95 % CI] (corrected) | error | holds | "
              "C | η slice-only [95 % CI] | error | holds | n error (corrected / slice-only) | truth [s] | fits [s] |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -405,7 +407,8 @@ def table(rows: list[dict]) -> str:
         factor = c["slice_correction"]["factor"] if c["slice_correction"] else float("nan")
         share = f"{c['viscous_share']:.2f}" if c.get("viscous_share") is not None else "-"
         if c.get("viscous_speed") is not None:
-            share += f" (≤ {c['viscous_speed']:.2g} m/s)"
+            resolves = c.get("resolvable", {}).get("viscous_speed_resolves")
+            share += f" (≤ {c['viscous_speed']:.2g} m/s{', unresolved' if resolves is False else ''})"
         lines.append(
             f"| {r['rig']} | {r['fluid']} | {c['effective_shear_rate']:.3g} | {share} | {c['eta_true']:.4g} | "
             f"{_estimate(c)}{_selects(c, r['law']['name'])} | {100 * c['error']:+.1f} % | {_verdict(c)} | "
