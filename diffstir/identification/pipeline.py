@@ -249,10 +249,10 @@ def _resolvable(problem: StirProblem, newtonian: FitResult) -> dict:
     is inertia-dominated: a relative error ε_i of the simulated inertial part moves ln η by about ε_i (1 − e) / e,
     which ``uncertainty.laplace`` holds (``inertial_error``).
 
-    An inertia-dominated stir also gets the slower stir that would not be: with F_v ∝ U and F_i ∝ U² (a steady stir
-    at mean speed U [m/s]), F_i / F_v = (1 − e) / e scales as U, so the viscous share reaches f at ``viscous_speed``
-    = U e (1 − f) / ((1 − e) f) [m/s], where the change per doubling is the present one times ``viscous_speed`` / U
-    (F_v ∝ U) and ``viscous_speed_resolves`` says whether it stays above ``floor``."""
+    For an inertia-dominated stir it also names the slower one that would not be: with F_v ∝ U and F_i ∝ U² (a
+    steady stir at mean speed U [m/s]), F_i / F_v = (1 − e) / e scales as U, so the viscous share reaches f at
+    ``viscous_speed`` = U e (1 − f) / ((1 − e) f) [m/s], where the change per doubling is the present one times
+    ``viscous_speed`` / U (F_v ∝ U) and ``viscous_speed_resolves`` says whether it stays above ``floor``."""
     jacobian, readings = newtonian.jacobian[problem.train, 0], newtonian.simulated_readings[problem.train]
     change = float(np.sqrt(np.mean((jacobian * math.log(2.0)) ** 2)))
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
