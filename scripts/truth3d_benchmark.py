@@ -11,8 +11,9 @@ hold the truth, and the law the fit selects (the Newtonian law is always fitted 
 
 Rigs: the project's default (conf/rig/paper.yaml on a 15 mm circle) and the study's ``shallow`` rig, both in the
 slice-correction study (scripts/slice_error.py), and ``held_out``, a rig the study never saw. Fluids: Newtonian
-from 0.03 to 10 Pa·s at one speed, and 0.1 Pa·s at a quarter of it (``_slow``); power-law (thinning and thickening), Carreau and Herschel-Bulkley fluids at
-three speeds inside the fitted 1.5 s and a fourth in the held-out 0.5 s.
+from 0.03 to 10 Pa·s at one speed, and 0.1 Pa·s at a quarter of it (``_slow``); power-law (thinning and
+thickening), Carreau and Herschel-Bulkley fluids at three speeds inside the fitted 1.5 s and a fourth in the
+held-out 0.5 s.
 
     python scripts/truth3d_benchmark.py --out docs/data/truth3d.json --recordings outputs/truth3d --jobs 2
     python scripts/truth3d_benchmark.py --cases project/newtonian_1 --out /tmp/t3.json
