@@ -122,3 +122,16 @@ def test_a_simulation_that_blows_up_ends_the_search_without_failing_the_identifi
     problem = _BlowsUpAbove(0.4, limit=0.3)  # the root lies where the simulator cannot go
     estimate = magnitude_estimate(problem, start=0.1, model_error=0.03)
     assert not estimate.resolved and estimate.viscosity <= 0.3 and math.isfinite(estimate.slope)
+
+
+def test_the_inertial_parts_error_widens_the_interval_by_its_share_of_the_reading():
+    # M = a0 + a1 η: at 0.4 Pa s the inertial part a0 is half of M, so s = 1/2 and σ_i = 30 % adds 15 % in ln M,
+    # ±1.96 √(0.03² + 0.15²) / 0.5 in ln η; a purely viscous reading (a0 = 0) would not be widened at all
+    problem = _InertialProblem(0.4, noise=1e-5, seed=0)
+    estimate = magnitude_estimate(problem, start=0.1, model_error=0.03, inertial_error=0.3)
+    lo, hi = estimate.ci95
+    s = problem.log_slope(0.4)
+    assert s == pytest.approx(0.5, rel=1e-3)
+    assert math.log(hi / lo) / 2 == pytest.approx(1.96 * math.hypot(0.03, 0.3 * (1 - s)) / s, rel=0.1)
+    assert estimate.relative_error == pytest.approx(math.hypot(0.03, 0.3 * (1 - s)), rel=0.05)
+    assert lo < 0.4 < hi

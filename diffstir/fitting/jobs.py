@@ -107,18 +107,20 @@ class ReadingJob:
 @dataclass
 class MagnitudeJob:
     """The Newtonian viscosity whose simulated reading has the size of ``problem``'s (``magnitude``), from
-    ``start`` [Pa·s], with the simulator's relative force error ``model_error`` in its interval."""
+    ``start`` [Pa·s], with the simulator's relative force error ``model_error`` and its inertial part's relative
+    error ``inertial_error`` in its interval."""
 
     stage: str
     key: str
     problem: StirProblem
     start: float
     model_error: float
+    inertial_error: float
     priority: tuple[bool, int] = (False, MAGNITUDE_STEPS + 1)  # nothing waits for it: after the Newtonian fits
 
     def run(self, report: Callable[[tuple], None]) -> MagnitudeEstimate:
         return magnitude_estimate(
-            self.problem, self.start, self.model_error,
+            self.problem, self.start, self.model_error, inertial_error=self.inertial_error,
             on_evaluation=lambda name, count, loss: report(("evaluation", self.stage, self.key, count, loss)))
 
 

@@ -17,10 +17,12 @@ the simulated side instead of being read as viscosity. The root is found by seca
 Its 95 % interval is the set of viscosities whose simulated statistic lies within 1.96 σ of the measured one in
 ln M, found by the same secant steps on each side (two to four more simulations),
 
-    σ² = var(mean |m|) / M² + σ_m²,   var(mean |m|) = mean_i Var|p_i + ε_i| / N,
+    σ² = var(mean |m|) / M² + σ_m² + (σ_i (1 − s))²,   var(mean |m|) = mean_i Var|p_i + ε_i| / N,
     Var|p + ε| = p² + σ² − (E|p + ε|)²,
 
-the sensor's white noise averaged over the N fitted samples and σ_m the simulator's relative force error. Where
+the sensor's white noise averaged over the N fitted samples, σ_m the simulator's relative force error, and σ_i the
+relative error of the reading's inertial part, which is the share 1 − s of M with s = d ln M / d ln η at η̂ (for
+M = M_i + M_v with M_v ∝ η, s = M_v / M), as in the waveform fit's intervals (``uncertainty.laplace``). Where
 the reading stops growing with η (the inertial floor of thin fluids) an end is not found and the interval is open
 there; where the slope at η̂ puts an end beyond a factor e^``MAX_STEP`` it is left open without a search. The
 estimate **resolves** the viscosity when both ends are found within a factor ``RESOLVED_FACTOR`` of η̂:
@@ -66,8 +68,8 @@ def expected_magnitude(readings: np.ndarray, noise: float) -> np.ndarray:
 @dataclass(frozen=True)
 class MagnitudeEstimate:
     """η̂ [Pa·s] with its 95 % interval (an end is 0 or inf where it was not found), d ln M / d ln η [1] at η̂, the
-    measured statistic M [N], its relative standard error σ [1] (noise and σ_m), whether the estimate resolves the
-    viscosity, and the simulations spent."""
+    measured statistic M [N], its relative standard error σ [1] (noise, σ_m and σ_i), whether the estimate resolves
+    the viscosity, and the simulations spent."""
 
     viscosity: float
     ci95: tuple[float, float]
@@ -86,10 +88,11 @@ class MagnitudeEstimate:
                           "recording's; 95 % interval by simulation"}
 
 
-def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *, on_evaluation=None
-                       ) -> MagnitudeEstimate:
+def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *, inertial_error: float = 0.0,
+                       on_evaluation=None) -> MagnitudeEstimate:
     """The Newtonian viscosity [Pa·s] whose simulated mean |reading| matches ``problem``'s, from ``start``
-    [Pa·s], with the simulator's relative force error ``model_error`` σ_m in its interval (module docstring)."""
+    [Pa·s], with the simulator's relative force error ``model_error`` σ_m and the relative error ``inertial_error``
+    σ_i of the reading's inertial part in its interval (module docstring)."""
     train = problem.train
     measured = problem.measured[train]
     noise = noise_scale(problem.measured, problem.recording.sensor.resolution)
@@ -116,7 +119,8 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
     slope = _slope_at(points, x_hat)
     p = readings(np.array([x_hat]))[train]
     mean_variance = float(np.mean(p**2 + noise**2 - expected_magnitude(p, noise) ** 2)) / p.size
-    sigma = math.sqrt(mean_variance / math.exp(2.0 * target) + model_error**2)
+    inertial_share = 1.0 - min(max(slope, 0.0), 1.0)
+    sigma = math.sqrt(mean_variance / math.exp(2.0 * target) + model_error**2 + (inertial_error * inertial_share) ** 2)
     first = Z95 * sigma / slope if slope > 0 else math.inf
     ends = [0.0, math.inf]
     if found and first <= MAX_STEP:  # else the ends lie beyond a factor e^MAX_STEP: open, not searched

@@ -192,7 +192,7 @@ class FitRun:
                 and not self.magnitude_pending:
             eta = newtonian.model.params_si()["eta"]
             error = force_error(self.settings.model_error, last.problem.slice_correction(newtonian.model.material))
-            pool.submit(MagnitudeJob(last.name, "magnitude", last.problem, eta, error))
+            pool.submit(MagnitudeJob(last.name, "magnitude", last.problem, eta, error, self.settings.inertial_error))
             self.magnitude_pending = True
 
 
