@@ -31,6 +31,7 @@ _HOMES = {
     "diagnose": "diffstir.diagnosis",
     "characterise": "diffstir.behaviour",
     "analyse_mixing": "diffstir.mixing",
+    "plan": "diffstir.planning",
     "Newtonian": "diffstir.rheology",
     "PowerLaw": "diffstir.rheology",
     "Carreau": "diffstir.rheology",

@@ -111,8 +111,8 @@ def test_every_app_has_config_groups_to_check():
 
 
 #: How many nodes of each app's defaults are composed on a schema.
-SCHEMA_NODES = {"diagnose": 1, "fit": 1, "import": 0, "pairs": 1, "rectifier": 3, "record": 5, "simulate": 0,
-                "synth": 0}
+SCHEMA_NODES = {"diagnose": 1, "fit": 1, "import": 0, "pairs": 1, "plan": 0, "rectifier": 3, "record": 5,
+                "simulate": 0, "synth": 0}
 
 
 @pytest.mark.parametrize("app", APPS)

@@ -19,7 +19,7 @@ FLOORS = (
     ("trajectory", "density", "slice_correction"),
     ("mpm", "hardware"),
     ("fitting", "lab"),
-    ("identification", "behaviour", "mixing", "diagnosis", "rectifier"),
+    ("identification", "behaviour", "mixing", "diagnosis", "rectifier", "planning"),
     ("apps",),
     ("fit", "__init__"),
 )

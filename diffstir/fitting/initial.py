@@ -109,6 +109,18 @@ class ViscosityLadder:
             return float(min(eta[-1] + slope * (mean_abs - force[-1]), upper))
         return float(np.interp(mean_abs, force, eta))
 
+    def reading(self, eta: float) -> tuple[float, float]:
+        """The mean |reading| M [N] of the Newtonian fluid ``eta`` [Pa·s] and s = d ln M / d ln η [1] there: linear
+        in η between the informative probes, the top segment extended above them, and flat (s = 0) below the
+        lowest, where the reading carries no viscosity information."""
+        force, visc = self._informative()
+        if len(force) == 1 or eta <= visc[0]:
+            return float(force[0]), 0.0
+        k = min(int(np.searchsorted(visc, eta)), len(visc) - 1)
+        slope = (force[k] - force[k - 1]) / (visc[k] - visc[k - 1])
+        mean_abs = float(force[k - 1] + slope * (eta - visc[k - 1]))
+        return mean_abs, float(slope * eta / mean_abs)
+
     def estimate(self, problem: StirProblem) -> float:
         """The Newtonian-equivalent viscosity [Pa·s] of ``problem``'s measured readings (fitted samples)."""
         upper = math.exp(FitModel.named("newtonian", eta=1.0).upper[0])

@@ -1,0 +1,43 @@
+"""diffstir-plan on its default configuration: the paper's rig, its shipped calibration (docs/acceptance.md)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from acceptance_commands import ok, refused, run
+
+from diffstir.hardware import load_trajectory
+from diffstir.lab import stirring_programme
+
+pytestmark = pytest.mark.acceptance
+
+
+def test_plan_writes_a_programme_that_beats_one_speed_and_the_arm_can_replay(tmp_path):
+    ok(run("diffstir-plan", "out=plan", cwd=tmp_path, timeout=600))
+    out = tmp_path / "plan"
+    report = json.loads((out / "plan.json").read_text())
+    plan, single = report["plan"], report["single_speed"]
+    speeds = [s["speed"] for s in plan["programme"]["segments"]]
+    assert len(speeds) >= 2 and speeds == sorted(speeds)
+    assert plan["gain_per_parameter"] > single["gain_per_parameter"]
+    # one speed is one point of the flow curve: every law passes through it and ln S = 0, so no pair is told apart
+    assert all(d == pytest.approx(0.0, abs=1e-3) for row in single["expected_delta_bic"].values() for d in row.values())
+    assert (out / "plan.md").read_text().startswith("# Stirring plan") and (out / "plan.png").stat().st_size > 0
+    # the programme as diffstir-synth reads it, and the path as diffstir-record replays it: the same motion
+    programme = yaml.safe_load((out / "lab" / "programme" / "planned.yaml").read_text())
+    path = load_trajectory(out / "stir_path.csv")
+    expected = stirring_programme(programme["segments"], radius=programme["radius"],
+                                  ramp_time=programme["ramp_time"], sample_rate=100.0)
+    assert path.duration == pytest.approx(sum(s["duration"] for s in programme["segments"]), abs=0.011)
+    np.testing.assert_allclose(path.xy, expected.xy[: len(path.t)], atol=1e-6)
+    again = run("diffstir-plan", "out=plan", cwd=tmp_path, timeout=120)
+    assert "overwrite=true" in refused(again)
+
+
+def test_a_bad_prior_is_refused_in_one_line_before_any_simulation(tmp_path):
+    line = refused(run("diffstir-plan", "out=plan", "prior.viscosity=[5,1]", cwd=tmp_path, timeout=120))
+    assert "prior.viscosity = [5, 1]; expected [low, high] in Pa s" in line
+    assert not (tmp_path / "plan").exists()
