@@ -151,10 +151,12 @@ def test_the_arm_bounds_the_speeds_and_the_ramps():
         assert list(programme.speeds) == sorted(programme.speeds)
 
 
-def test_a_circle_that_would_touch_the_wall_is_refused():
+def test_a_circle_that_would_touch_the_wall_or_a_budget_without_room_is_refused():
     rig = Rig()
     with pytest.raises(ConfigError, match="plan.radius = 0.03 m; the rod stays 0.005 m clear"):
         PlanSettings(radius=0.03).check_rig(rig)
+    with pytest.raises(ConfigError, match="plan.budget = 0.6 s leaves no segment room"):
+        PlanSettings(budget=0.6).check_rig(rig)  # a 0.2 s ramp, 0.2 s of settling and a 0.3 s window need 0.7 s
 
 
 def test_the_plan_stirs_several_speeds_and_beats_one_speed_for_a_thinning_prior():

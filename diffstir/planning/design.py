@@ -116,7 +116,8 @@ class PlanSettings:
         return WindowErrors(self.noise, self.resolution, self.model_error, self.inertial_error)
 
     def check_rig(self, rig: Rig) -> None:
-        """A ConfigError unless the circle keeps the rod ``arm.clearance`` from the wall and a speed is allowed."""
+        """A ConfigError unless the circle keeps the rod ``arm.clearance`` from the wall, a speed is allowed and
+        the budget holds a segment: checked before the rig's calibration simulates anything."""
         widest = rig.cup.radius - rig.rod.radius - self.arm.clearance
         if not self.radius <= widest:
             raise ConfigError(f"plan.radius = {self.radius} m; the rod stays {self.arm.clearance} m clear of the "
@@ -124,6 +125,9 @@ class PlanSettings:
         if not self.levels():
             raise ConfigError(f"plan.speeds = {list(self.speeds)} m/s; none is within the arm's limit "
                               f"{self.arm.fastest(self.radius):.3g} m/s on a {self.radius} m circle")
+        if not candidates(self):
+            raise ConfigError(f"plan.budget = {self.budget} s leaves no segment room for its ramp, "
+                              f"{self.settle_time} s of settling and a {self.min_window} s window")
 
     def levels(self) -> tuple[float, ...]:
         """The candidate speeds [m/s] the arm allows on the circle."""
@@ -240,9 +244,6 @@ class Planner:
     def best(self) -> Programme:
         """The candidate of the highest gain (the fewest segments among equals)."""
         scored = [(self.gain(p)[0], -len(p.speeds), p) for p in candidates(self.settings)]
-        if not scored:
-            raise ConfigError(f"plan.budget = {self.settings.budget} s leaves no segment room for its ramp, "
-                              f"{self.settings.settle_time} s of settling and a {self.settings.min_window} s window")
         return max(scored, key=lambda item: item[:2])[2]
 
 
