@@ -165,7 +165,7 @@ def test_the_plan_stirs_several_speeds_and_beats_one_speed_for_a_thinning_prior(
     settings = PlanSettings(speeds=SPEEDS, radius=0.015)
     planner = Planner(calibration, prior, settings)
     best = planner.best()
-    single = Programme((0.04,), settings.budget, settings.radius, settings.arm.ramp_time(0.04, settings.min_ramp))
+    single = Programme.through((0.04,), settings)
     assert len(best.speeds) >= 2
     assert planner.gain(best)[0] > planner.gain(single)[0]
     assert best.speeds[-1] / best.speeds[0] >= 4  # the information on an index grows with ln(γ̇_max / γ̇_min)

@@ -25,20 +25,20 @@ from .progress import Progress, fit_simulations
 from .result import Identification, parameter_summary, parameter_uncertainty
 from .selection import CRITERIA, bic, bic_of_rss, rank, select
 from .settings import FitSettings
-from .uncertainty import (COARSE_FORCE_ERROR, INERTIAL_FORCE_ERROR, MAX_FACTOR, MAX_LINEAR_HALF_WIDTH,
-                          MODEL_FORCE_ERROR, Z95, Uncertainty, checked_model_error, effective_samples, force_error,
-                          laplace, log_viscosity_interval)
+from .uncertainty import (COARSE_FORCE_ERROR, INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Z95, Uncertainty,
+                          checked_model_error, effective_samples, force_error, identifiable_half_width, laplace,
+                          log_viscosity_interval)
 from .windows import PAUSE_SPEED, SpeedWindow, speed_windows
 
 __all__ = ["COARSE_FORCE_ERROR", "CRITERIA", "DEFAULT_NUISANCES", "FitJob", "FitModel", "FitProblem", "FitResult",
            "FitSettings", "INERTIAL_FORCE_ERROR", "Identification", "LADDER_VISCOSITIES", "MAGNITUDE_STEPS",
-           "MAX_FACTOR", "MAX_LINEAR_HALF_WIDTH", "MODEL_FORCE_ERROR", "MagnitudeJob", "MaterialParameters",
-           "NO_NUISANCE", "NUISANCES", "OPTIMIZERS", "PAUSE_SPEED", "PROBE_INDEX_STEP", "ParameterSet", "Progress",
-           "ReadingJob", "Readings", "SHEAR_RATE_PROBES", "SensorNuisance", "SpeedWindow", "StirProblem",
-           "ThetaParameters", "UNITS", "Uncertainty", "ViscosityLadder", "ViscosityPoint", "Windows", "WindowsJob",
-           "YIELD_SHARES", "Z95", "bic", "bic_of_rss", "characteristic_shear_rate", "checked_model_error",
-           "effective_samples", "effective_shear_rate", "fit_model", "fit_simulations", "force_error", "initial_model",
-           "initial_models", "lag_response", "laplace", "law_family", "log_viscosity_interval", "mean_readings_on",
-           "mean_stirring_speed", "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty",
-           "rank", "rig_from_recording", "select", "speed_windows", "theta_of", "trajectory_from_recording", "value_of",
+           "MODEL_FORCE_ERROR", "MagnitudeJob", "MaterialParameters", "NO_NUISANCE", "NUISANCES", "OPTIMIZERS",
+           "PAUSE_SPEED", "PROBE_INDEX_STEP", "ParameterSet", "Progress", "ReadingJob", "Readings", "SHEAR_RATE_PROBES",
+           "SensorNuisance", "SpeedWindow", "StirProblem", "ThetaParameters", "UNITS", "Uncertainty", "ViscosityLadder",
+           "ViscosityPoint", "Windows", "WindowsJob", "YIELD_SHARES", "Z95", "bic", "bic_of_rss",
+           "characteristic_shear_rate", "checked_model_error", "effective_samples", "effective_shear_rate", "fit_model",
+           "fit_simulations", "force_error", "identifiable_half_width", "initial_model", "initial_models",
+           "lag_response", "laplace", "law_family", "log_viscosity_interval", "mean_readings_on", "mean_stirring_speed",
+           "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty", "rank",
+           "rig_from_recording", "select", "speed_windows", "theta_of", "trajectory_from_recording", "value_of",
            "window_event", "window_simulations", "window_viscosity"]

@@ -153,11 +153,16 @@ def laplace(model: ParameterSet, theta: np.ndarray, jacobian: np.ndarray, residu
     for j, name in enumerate(model.names):
         ci95[name] = (float(lows[j]) if math.isfinite(se[j]) else (0.0 if model.scales[j] == "log" else -math.inf),
                       float(highs[j]) if math.isfinite(se[j]) else math.inf)
-        limit = math.log(MAX_FACTOR) if model.scales[j] == "log" else MAX_LINEAR_HALF_WIDTH
-        identifiable[name] = bool(Z95 * se[j] <= limit and not at_bound[j])
+        identifiable[name] = bool(Z95 * se[j] <= identifiable_half_width(model.scales[j]) and not at_bound[j])
         flags[name] = bool(at_bound[j])
     return Uncertainty(covariance=covariance, ci95=ci95, identifiable=identifiable, at_bound=flags,
                        effective_samples=n_eff, residual_std=math.sqrt(s2))
+
+
+def identifiable_half_width(scale: str) -> float:
+    """The widest 95 % half-width in θ of an identifiable parameter on ``scale``: ln ``MAX_FACTOR`` for a
+    log-scaled one, ``MAX_LINEAR_HALF_WIDTH`` for an index."""
+    return math.log(MAX_FACTOR) if scale == "log" else MAX_LINEAR_HALF_WIDTH
 
 
 def log_viscosity_interval(model: FitModel, theta: np.ndarray, covariance: np.ndarray,

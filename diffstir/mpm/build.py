@@ -121,6 +121,12 @@ class _SettlingFluid(nn.Module):
         return 2.0 * self.viscosity * deviatoric_rate_of_strain(grad_v)
 
 
+def cache_root(cache_dir: str | Path | None = None) -> Path:
+    """Where diffstir keeps what it computes once (settled fluids, a rig's plan calibration): ``cache_dir``, else
+    ``$DIFFSTIR_CACHE_DIR``, else ``~/.cache/diffstir``."""
+    return Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
+
+
 def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pose: RodPose,
                   cache_dir: str | Path | None = None) -> State:
     """The fluid at rest around a still rod: seeded, then left to settle with damping, under gravity in 3-D and, in
@@ -136,8 +142,7 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
     # a rollout may have raised the bulk modulus; a projection's fluid settles as the compressible one
     scene = replace(scene, bulk_modulus=density * config.sound_speed**2, cell_matrices=None)
     key = _settle_key(rig, config, density, pose)
-    root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
-    path = root / "settled" / f"{key}.pt"
+    path = cache_root(cache_dir) / "settled" / f"{key}.pt"
     if path.exists():
         cached = torch.load(path, map_location=state.x.device)
         if cached["x"].shape == state.x.shape:

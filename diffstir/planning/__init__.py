@@ -27,9 +27,9 @@ from .result import StirPlan
 #: How long each calibration stir holds its speed after the ramp [s]: the settling time and three behaviour windows.
 CALIBRATION_STEADY_TIME = 0.8
 
-__all__ = ["CALIBRATION_STEADY_TIME", "ArmLimits", "Assessment", "Calibration", "PLAN_LAWS", "PlanSettings", "Planner", "Prior", "Programme",
-           "StirPlan", "Window", "WindowErrors", "WindowPoint", "calibrate", "candidates", "fisher_information",
-           "information_gain", "plan", "probe_viscosities", "rig_calibration", "window_points"]
+__all__ = ["CALIBRATION_STEADY_TIME", "ArmLimits", "Assessment", "Calibration", "PLAN_LAWS", "PlanSettings", "Planner",
+           "Prior", "Programme", "StirPlan", "Window", "WindowErrors", "WindowPoint", "calibrate", "candidates",
+           "fisher_information", "information_gain", "plan", "probe_viscosities", "rig_calibration", "window_points"]
 
 
 def plan(rig: Rig | None = None, prior: Prior | None = None, settings: PlanSettings | None = None, *,
@@ -43,8 +43,7 @@ def plan(rig: Rig | None = None, prior: Prior | None = None, settings: PlanSetti
     rig, prior, settings = rig or Rig(), prior or Prior(), settings or PlanSettings()
     calibration = rig_calibration(rig, prior, settings, config, workers=workers, cache_dir=cache_dir, report=report)
     planner = Planner(calibration, prior, settings)
-    single = Programme((settings.baseline_speed,), settings.budget, settings.radius,
-                       settings.arm.ramp_time(settings.baseline_speed, settings.min_ramp))
+    single = Programme.through((settings.baseline_speed,), settings)
     best = planner.best()
     return StirPlan(planner.assess(best), planner.assess(single), calibration, prior, settings,
                     seconds=time.perf_counter() - started)

@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..fitting import (SHEAR_RATE_PROBES, FitModel, ReadingJob, StirProblem, ViscosityLadder, Windows, effective_shear_rate,
-                       mean_stirring_speed)
+from ..fitting import (SHEAR_RATE_PROBES, FitModel, ReadingJob, StirProblem, ViscosityLadder, Windows,
+                       effective_shear_rate, mean_stirring_speed)
 from ..lab.programme import stirring_programme
-from ..mpm import SimConfig
+from ..mpm import SimConfig, cache_root
 from ..parallel import Workers
 from ..recording import CupGeometry, Recording, RodGeometry, SensorSpec
 from ..rig import Rig
@@ -96,8 +96,7 @@ def calibrate(rig: Rig, config: SimConfig, density: float, radius: float, speeds
            "speeds": list(speeds), "viscosities": list(viscosities), "ramp_time": ramp_time,
            "steady_time": steady_time, "settle_time": settle_time, "sample_rate": sample_rate, "version": __version__}
     digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    root = Path(cache_dir or os.environ.get("DIFFSTIR_CACHE_DIR", Path.home() / ".cache" / "diffstir"))
-    path = root / "plan" / f"calibration-{digest}.json"
+    path = cache_root(cache_dir) / "plan" / f"calibration-{digest}.json"
     for known in (path, SHIPPED / path.name):
         if known.exists():
             return Calibration.from_dict(json.loads(known.read_text()))
@@ -117,7 +116,7 @@ def calibrate(rig: Rig, config: SimConfig, density: float, radius: float, speeds
             return [middle.mean_reading(r) for r in pool.map(probes)]
 
         rate = effective_shear_rate(middle, reference, evaluate=side_by_side)
-    means = [p.mean_reading(r) for p, r in zip([p for p in problems for _ in viscosities], readings)]
+    means = [job.problem.mean_reading(r) for job, r in zip(jobs, readings)]
     n = len(viscosities)
     ladders = tuple(ViscosityLadder(tuple(viscosities), tuple(means[k * n:(k + 1) * n])) for k in range(len(speeds)))
     factor = rate * rig.rod.radius / mean_stirring_speed(middle)

@@ -143,6 +143,18 @@ class Programme:
     radius: float
     ramp_time: float
 
+    @classmethod
+    def through(cls, speeds: tuple[float, ...], settings: PlanSettings) -> "Programme":
+        """``speeds`` [m/s] in turn from rest on ``settings``' circle, its budget split evenly, with the ramp the
+        largest step needs within the arm's acceleration."""
+        steps = np.diff(np.concatenate([[0.0], speeds]))
+        ramp = settings.arm.ramp_time(float(np.max(np.abs(steps))), settings.min_ramp)
+        return cls(tuple(speeds), settings.budget / len(speeds), settings.radius, ramp)
+
+    def fits(self, settings: PlanSettings) -> bool:
+        """Whether each segment holds its ramp, ``settle_time`` and a ``min_window`` window."""
+        return self.duration >= self.ramp_time + settings.settle_time + settings.min_window
+
     def segments(self) -> list[Segment]:
         return [Segment(speed=u, duration=self.duration) for u in self.speeds]
 
@@ -159,22 +171,10 @@ class Programme:
 def candidates(settings: PlanSettings) -> list[Programme]:
     """Every ascending choice of 1 to ``max_segments`` levels whose segments fit ramp, settling and window."""
     levels = settings.levels()
-    out = []
-    for count in range(1, min(settings.max_segments, len(levels)) + 1):
-        for speeds in itertools.combinations(levels, count):
-            programme = _programme(speeds, settings)
-            if programme is not None:
-                out.append(programme)
-    return out
-
-
-def _programme(speeds: tuple[float, ...], settings: PlanSettings) -> Programme | None:
-    steps = np.diff(np.concatenate([[0.0], speeds]))
-    ramp = settings.arm.ramp_time(float(np.max(np.abs(steps))), settings.min_ramp)
-    duration = settings.budget / len(speeds)
-    if duration < ramp + settings.settle_time + settings.min_window:
-        return None
-    return Programme(tuple(speeds), duration, settings.radius, ramp)
+    counts = range(1, min(settings.max_segments, len(levels)) + 1)
+    programmes = [Programme.through(speeds, settings) for count in counts
+                  for speeds in itertools.combinations(levels, count)]
+    return [p for p in programmes if p.fits(settings)]
 
 
 @dataclass(frozen=True)

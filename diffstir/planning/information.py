@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..fitting import MAX_FACTOR, MAX_LINEAR_HALF_WIDTH, Z95, FitModel, value_of
+from ..fitting import Z95, FitModel, identifiable_half_width, value_of
 from .calibration import Calibration
 
 
@@ -121,8 +121,8 @@ def information_gain(information: np.ndarray, prior_precision: np.ndarray) -> fl
 
 def predicted_intervals(model: FitModel, information: np.ndarray) -> dict[str, dict]:
     """Each of ``model``'s parameters' predicted 95 % interval [SI], θ_j ± 1.96 √(I⁻¹)_jj mapped to its unit, and
-    whether it would be identifiable by the fit's rule (``fitting.uncertainty``: within a factor ``MAX_FACTOR``
-    each way, or ±``MAX_LINEAR_HALF_WIDTH`` for an index). The interval is (None, None) where the information leaves
+    whether it would be identifiable by the fit's rule (``fitting.identifiable_half_width``: within a factor 3
+    each way, or ±0.5 for an index). The interval is (None, None) where the information leaves
     θ_j unidentified (a condition number of I beyond ``MAX_CONDITION``)."""
     theta = model.theta()
     covariance = np.linalg.inv(information) if np.linalg.cond(information) < MAX_CONDITION else None
@@ -133,9 +133,8 @@ def predicted_intervals(model: FitModel, information: np.ndarray) -> dict[str, d
             out[name] = {"ci95": [None, None], "identifiable": False}
             continue
         half = Z95 * math.sqrt(variance)
-        limit = math.log(MAX_FACTOR) if scale == "log" else MAX_LINEAR_HALF_WIDTH
         out[name] = {"ci95": [_si(theta[j] - half, scale), _si(theta[j] + half, scale)],
-                     "identifiable": bool(half <= limit)}
+                     "identifiable": bool(half <= identifiable_half_width(scale))}
     return out
 
 
