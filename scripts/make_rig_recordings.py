@@ -10,6 +10,7 @@ diffstir/data/examples/ (each with its truth file beside it; docs/virtual-lab.md
 | rig_behaviour_slow, _mid, _fast | carreau_example | 6 mm circle at 0.03, 0.06, 0.12 m/s, 1.4, 0.8, 0.55 s | rig_encoder_200hz: 1 um |
 | rig_blend | 1.0 and 0.1 Pa s Newtonian, half each | 15 mm circle, 0.08 m/s, 2.4 s (four 0.5 s windows of the default mixing experiment) | rig_encoder_200hz |
 | rig_fe3d_6s | carreau_example | 15 mm circle, 0.05 m/s, 6 s | paper |
+| rig_planned_short | carreau_example | conf/lab/programme/paper_plan.yaml's four speeds, 0.8 s each instead of 2 s | paper |
 
 The truth simulation is the lab's default (conf/lab/sim/truth2d.yaml, 2 mm cells) in the paper's rig
 (conf/rig/paper.yaml), except rig_fe3d_6s's: the stir in the 3-D cup by finite elements (conf/lab/sim/fe3d.yaml);
@@ -47,6 +48,12 @@ def _programme(radius: float, speed: float, duration: float) -> dict:
             "segments": [{"speed": speed, "duration": duration}]}
 
 
+def _shortened(name: str, duration: float) -> dict:
+    """The programme preset ``conf/lab/programme/<name>.yaml`` with every segment lasting ``duration`` [s]."""
+    programme = _preset("programme", name)
+    return {**programme, "segments": [{**segment, "duration": duration} for segment in programme["segments"]]}
+
+
 BLEND = {"first": {"name": "viscous", "density": 1260.0, "law": {"name": "newtonian", "params": {"eta": 1.0}}},
          "second": {"name": "thin", "density": 1000.0, "law": {"name": "newtonian", "params": {"eta": 0.1}}},
          "fraction": 0.5, "alpha": 0.6, "layout": "core", "strain_mixing": 0.3}
@@ -60,6 +67,7 @@ RECORDINGS = {
     "rig_behaviour_fast": (_programme(0.006, 0.12, 0.55), "rig_encoder_200hz", None, "truth2d"),
     "rig_blend": (_programme(0.015, 0.08, 2.4), "rig_encoder_200hz", BLEND, "truth2d"),
     "rig_fe3d_6s": (_programme(0.015, 0.05, 6.0), "paper", None, "fe3d"),
+    "rig_planned_short": (_shortened("paper_plan", 0.8), "paper", None, "truth2d"),
 }
 
 

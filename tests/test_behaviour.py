@@ -322,6 +322,12 @@ def test_classify_refuses_bad_points():
 
 @pytest.fixture(scope="module")
 def lab_recordings():
+    return lab_fluid_recordings()
+
+
+def lab_fluid_recordings() -> dict:
+    """A Newtonian (0.5 Pa·s) and a thinning (power law, k = 3 Pa·sⁿ, n = 0.4) fluid of water's density stirred at
+    ``SPEEDS`` on FAST, by name."""
     traj = stirring_programme([{"speed": s, "duration": SEGMENT} for s in SPEEDS], radius=0.015, ramp_time=RAMP)
     # 400 Hz: the fit replays the recorded rod path between samples along chords, which at 100 Hz and 0.16 m/s
     # changes the simulated drag by a few per cent (docs/behaviour.md); that is not what these tests are about

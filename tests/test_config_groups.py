@@ -144,6 +144,10 @@ def test_the_behaviour_block_composes_on_its_schema_to_its_defaults():
     settings = OmegaConf.to_object(composed("fit", ["experiment=behaviour"]).behaviour)
     assert isinstance(settings, BehaviourSettings)
     assert settings == BehaviourSettings()
+    # experiment=flow_curve is the same experiment with its cheaper analysis and every other default kept
+    flow_curve = OmegaConf.to_object(composed("fit", ["experiment=flow_curve"]).behaviour)
+    assert flow_curve == BehaviourSettings(analysis="flow_curve")
+    assert composed("fit", ["experiment=flow_curve"]).sim == composed("fit", ["experiment=behaviour"]).sim
 
 
 def test_the_fit_stages_in_python_are_the_fit_presets():

@@ -110,9 +110,12 @@ def behaviour(cfg: DictConfig) -> None:
                           workers=config_workers(cfg), progress=bool(cfg.progress))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     paths = result.write(out)
-    b = result.summary()["behaviour"]
-    print(f"{b['class']} (confidence {b['confidence']:.2f}; slope {b['slope']:.3f}, 95 % CI {b['slope_ci95'][0]:.3f} "
-          f"to {b['slope_ci95'][1]:.3f}, from the {b['slope_source']}); wrote {paths['json']}")
+    summary = result.summary()
+    b = summary["behaviour"]
+    source = (f"the class of {summary['joint_fit']['selected']}, the law the points select; slope" if b.get("laws")
+              else "slope")
+    print(f"{b['class']} (confidence {b['confidence']:.2f}; {source} {b['slope']:.3f}, 95 % CI "
+          f"{b['slope_ci95'][0]:.3f} to {b['slope_ci95'][1]:.3f}, from the {b['slope_source']}); wrote {paths['json']}")
 
 
 def mixing(cfg: DictConfig) -> None:

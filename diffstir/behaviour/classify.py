@@ -150,6 +150,7 @@ class Classification:
     shares: dict[str, float]
     joint: JointYieldTest | None = None
     estimate: SlopeEstimate | None = None
+    laws: dict | None = None
 
     def with_slope_estimate(self, estimate: SlopeEstimate | None) -> "Classification":
         """The class with the slope test decided by ``estimate`` (module docstring, 4); unchanged without one or
@@ -178,7 +179,27 @@ class Classification:
             confidence = (falls if label == "shear_thinning" else self.shares[label]) * (1.0 - test.weight)
         return replace(self, label=label, confidence=confidence, joint=test)
 
+    def with_law_families(self, families: dict[str, str], bics: dict[str, float]) -> "Classification":
+        """The class of the law with the lowest BIC among laws fitted to the points (``families``: each law's class
+        over the probed shear rates, ``fitting.law_family``), its confidence the Schwarz weight of the laws of
+        that class, w_j = exp(−BIC_j/2) / Σ_l exp(−BIC_l/2) (``behaviour.flow_laws``)."""
+        best = min(bics.values())
+        weights = {name: math.exp(-0.5 * (bic - best)) for name, bic in bics.items()}
+        total = sum(weights.values())
+        shares = {label: sum(w for name, w in weights.items() if families[name] == label) / total for label in CLASSES}
+        label = families[min(bics, key=bics.get)]
+        laws = {"families": dict(families), "weights": {name: w / total for name, w in weights.items()},
+                "class_weights": shares}
+        return replace(self, label=label, confidence=shares[label], laws=laws)
+
     def summary(self) -> dict:
+        if self.laws is not None:
+            return {**self._slope_summary(), "laws": self.laws,
+                    "method": "the class of the law the points select by BIC over the probed shear rates "
+                              "(fitting.family); confidence: the Schwarz weight of the laws of that class"}
+        return self._slope_summary()
+
+    def _slope_summary(self) -> dict:
         slope = self.slope if self.estimate is None else self.estimate
         return {"class": self.label, "confidence": self.confidence, "slope": slope.value,
                 "slope_ci95": list(slope.ci95), "slope_std": slope.std,

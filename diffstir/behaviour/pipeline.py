@@ -23,8 +23,9 @@ import numpy as np
 
 from ..density import combined_density
 from ..errors import check_choice
-from ..fitting import (MODEL_FORCE_ERROR, Z95, FitModel, Progress, ViscosityPoint, WindowsJob, speed_windows,
-                       window_event, window_simulations)
+from ..fitting import (MODEL_FORCE_ERROR, PROGRAMME_SIMULATIONS, Z95, FitModel, ProgrammeFit, Progress,
+                       SpeedWindow, ViscosityPoint, WindowsJob, programme_viscosities, speed_windows, window_event,
+                       window_simulations)
 from ..mpm import SimConfig
 from ..parallel import Workers
 from ..recording import Recording, RecordingError
@@ -32,6 +33,7 @@ from ..report_files import Report
 from ..rheology import has_yield_stress
 from .classify import (YIELD_SHARE_SIGMAS, Classification, SlopeEstimate, classify, decide, joint_yield_test,
                        slope_agreement)
+from .flow_laws import FlowCurveLaws, flow_curve_laws
 from .joint import JointFit, joint_fit, joint_simulations, yield_share
 from .report import markdown, plot_all
 from .settings import SLOPE_TESTS, BehaviourSettings
@@ -47,8 +49,9 @@ class Behaviour(Report):
     used: list[ViscosityPoint]
     metzner_otto: float
     classification: Classification
-    joint: JointFit | None
+    joint: JointFit | FlowCurveLaws | None
     seconds: float
+    programmes: list[ProgrammeFit] | None = None
 
     def shear_rates(self, points: list[ViscosityPoint]) -> np.ndarray:
         """γ̇_eff = k̄_s U / a [1/s] of ``points`` with the common Metzner-Otto constant k̄_s."""
@@ -58,7 +61,7 @@ class Behaviour(Report):
         points = [{**p.summary(), "shear_rate": float(g), "classified": any(p is q for q in self.used)}
                   for p, g in zip(self.points, self.shear_rates(self.points))]
         behaviour = self.classification.summary()
-        index = None if self.joint is None else self.joint.power_law_slope()
+        index = None if self.joint is None or isinstance(self.joint, FlowCurveLaws) else self.joint.power_law_slope()
         if index is not None:
             behaviour["slope_check"] = slope_agreement(self.classification.slope, SlopeEstimate(*index))
         return {"behaviour": behaviour, "density": self.density,
@@ -66,7 +69,8 @@ class Behaviour(Report):
                                  "meaning": "effective shear rate = value * rod speed / rod radius, the geometric "
                                             "mean of the windows' measured constants"},
                 "points": points,
-                "joint_fit": None if self.joint is None else self.joint.summary(), "seconds": self.seconds}
+                "joint_fit": None if self.joint is None else self.joint.summary(), "seconds": self.seconds,
+                "programmes": None if self.programmes is None else [p.summary() for p in self.programmes]}
 
     def report(self) -> str:
         """report.md: the class, its slope and tests, the per-speed points and the joint fit's laws."""
@@ -88,12 +92,15 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
             ``settings.joint_models``, the joint fit decides the yield stress (``classify``, 3), counting a yield
             stress that carries more than ``YIELD_SHARE_SIGMAS`` σ_m of the stress at the slowest speed; with the
             power law among them, the report compares its index with the points' slope
-            (``classify.slope_agreement``).
+            (``classify.slope_agreement``). With ``settings.analysis = "flow_curve"`` the windows are read by
+            Newtonian simulations of each whole recording and the class is that of the law the points select
+            (``flow_laws``, docs/flow-curve.md).
         density: the fluid's density [kg/m³], used only when no recording has a density block.
         workers: processes that run the recordings' windows side by side (``WindowsJob``: a recording's windows in
-            order), then the joint laws (``joint.joint_fit``); 1: in this process.
+            order), then the joint laws (``joint.joint_fit``), or a recording's Newtonian rungs (``flow_curve``);
+            1: in this process.
         progress: show a progress bar of the simulations (``fitting.progress``): one task per window and one
-            per joint law.
+            per joint law (``settings.analysis = "flow_curve"``: one per recording).
     """
     started = time.perf_counter()
     if not recordings:
@@ -103,16 +110,25 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
     windows = [speed_windows(rec, tolerance=settings.speed_tolerance, min_duration=settings.min_window,
                              pause_speed=settings.pause_speed)
                for rec in recordings]  # every recording's, before the first simulation
-    expected = {label: window_simulations(k > 0, settings.iterations)
-                for recording_windows in windows for k, label in enumerate(w.label for w in recording_windows)}
-    expected.update({f"joint {name}": joint_simulations(name, settings.joint_iterations)
-                     for name in settings.joint_models})
+    programme = settings.analysis == "flow_curve"
+    if programme:
+        expected = {f"programme {k}": PROGRAMME_SIMULATIONS for k, w in enumerate(windows) if w}
+    else:
+        expected = {label: window_simulations(k > 0, settings.iterations) for recording_windows in windows
+                    for k, label in enumerate(w.label for w in recording_windows)}
+        expected.update({f"joint {name}": joint_simulations(name, settings.joint_iterations)
+                         for name in settings.joint_models})
     with Progress(expected, bar=progress, label="behaviour") as tracker:
-        jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], settings.iterations,
-                           settings.model_error, settings.inertial_error)
-                for k, recording_windows in enumerate(windows) if recording_windows]
-        with Workers(min(workers, len(jobs)), partial(window_event, tracker)) as pool:
-            points = [p for recording_points in pool.map(jobs) for p in recording_points]
+        programmes = None
+        if programme:
+            programmes = programme_fits(windows, config, rho["value"], settings, workers, tracker)
+            points = [p for fit in programmes for p in fit.points]
+        else:
+            jobs = [WindowsJob("windows", str(k), recording_windows, config, rho["value"], settings.iterations,
+                               settings.model_error, settings.inertial_error)
+                    for k, recording_windows in enumerate(windows) if recording_windows]
+            with Workers(min(workers, len(jobs)), partial(window_event, tracker)) as pool:
+                points = [p for recording_points in pool.map(jobs) for p in recording_points]
         used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
         if len({round(p.speed, 6) for p in used}) < 2:
             raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves (" + ", ".join(
@@ -123,7 +139,9 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
         result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used],
                           replicates=settings.replicates, seed=settings.seed)
         joint, index, test = None, None, None
-        if settings.joint_models:
+        if settings.joint_models and programme:
+            joint = flow_curve_laws(used, rates, list(settings.joint_models))
+        elif settings.joint_models:
             joint = joint_fit(used, rates, config, rho["value"], list(settings.joint_models),
                               iterations=settings.joint_iterations, workers=workers, model_error=settings.model_error,
                               inertial_error=settings.inertial_error, report=partial(_joint_evaluation, tracker))
@@ -131,11 +149,39 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
                 tracker.finished(f"joint {name}")
             slope = joint.power_law_slope()
             index = None if slope is None else SlopeEstimate(*slope)
-            test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())),
-                                    YIELD_SHARE_SIGMAS * settings.model_error)
-        result = decide(result, index, test, settings.slope_test)
+        if isinstance(joint, FlowCurveLaws):
+            band = (float(rates.min()), float(rates.max()))
+            result = result.with_law_families(joint.families(band, float(np.exp(np.mean(np.log(rates))))), joint.bic)
+        else:
+            if joint is not None:
+                test = joint_yield_test(joint.bic, joint.yield_shares(float(rates.min())),
+                                        YIELD_SHARE_SIGMAS * settings.model_error)
+            result = decide(result, index, test, settings.slope_test)
         tracker.close(f"{result.label} (confidence {result.confidence:.2f})")
-    return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started)
+    return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started, programmes)
+
+
+def programme_fits(windows: list[list[SpeedWindow]], config: SimConfig, density: float,
+                   settings: BehaviourSettings, workers: int, tracker: Progress) -> list[ProgrammeFit]:
+    """Each recording's windows read by simulations of its whole programme (``fitting.programme_viscosities``),
+    recording after recording, each one's simulations side by side in ``workers`` processes."""
+    fits = []
+    with Workers(workers, partial(_programme_evaluation, tracker)) as pool:
+        for k, recording_windows in enumerate(windows):
+            if recording_windows:
+                fit = programme_viscosities(recording_windows, config, density, workers=pool, slots=workers,
+                                            model_error=settings.model_error, inertial_error=settings.inertial_error,
+                                            stage=f"programme {k}")
+                tracker.finished(f"programme {k}")
+                fits.append(fit)
+    return fits
+
+
+def _programme_evaluation(tracker: Progress, event: tuple) -> None:
+    """A programme simulation's event (``fitting.programme``) counted against its recording's task."""
+    kind, stage, _key, *data = event
+    if kind == "evaluation":
+        tracker.evaluation(stage, None, data[1])
 
 
 def _joint_evaluation(tracker: Progress, event: tuple) -> None:
@@ -153,11 +199,16 @@ def reclassify(summary: dict, *, slope_test: str = "combined", replicates: int =
     simulator together), the joint power law's n and its 95 % interval, and the joint laws' BIC and parameters
     (their yield stresses' shares of the slowest stress, material above ``YIELD_SHARE_SIGMAS`` × ``model_error``).
     With the report's own test, ``replicates``, ``seed`` and ``model_error`` it gives the report's class and
-    confidence (to the rounding of the parameters)."""
+    confidence (to the rounding of the parameters). A flow-curve report's class is again that of the law its points
+    select (``behaviour.flow_laws``: the laws' classes and BICs it holds), whatever ``slope_test``."""
     check_choice("behaviour.slope_test", slope_test, SLOPE_TESTS)
     used = [p for p in summary["points"] if p["classified"]]
     points = classify([p["shear_rate"] for p in used], [p["viscosity"] for p in used],
                       [math.hypot(p["log_std"], p["model_log_std"]) for p in used], replicates=replicates, seed=seed)
+    by_laws = summary["behaviour"].get("laws")
+    if by_laws is not None:  # the flow-curve analysis: the class of the law the points select (flow_laws)
+        return points.with_law_families(by_laws["families"],
+                                        {name: law["bic"] for name, law in summary["joint_fit"]["laws"].items()})
     joint, index, test = summary.get("joint_fit"), reported_joint_index(summary), None
     if joint is not None:
         laws = joint["laws"]

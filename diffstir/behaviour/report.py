@@ -11,6 +11,7 @@ import numpy as np
 from ..fitting import log_viscosity_interval
 from ..plots import pyplot, save_figure, viscosity_band
 from ..report_files import format_param
+from .flow_laws import FlowCurveLaws
 
 
 def markdown(summary: dict) -> str:
@@ -24,6 +25,10 @@ def markdown(summary: dict) -> str:
              f"{b['points_slope']['ci95'][0]:.3f} to {b['points_slope']['ci95'][1]:.3f}; Birge ratio "
              f"{b['birge_ratio']:.2f})",
              f"- density {summary['density']['value']:.1f} kg/m³ ({summary['density']['source']})"]
+    if b.get("laws") is not None:
+        weights = ", ".join(f"{label} {w:.3f}" for label, w in b["laws"]["class_weights"].items() if w > 5e-4)
+        lines.insert(2, f"- class of the law the points select by BIC ({summary['joint_fit']['selected']}); Schwarz "
+                        f"weight of each class: {weights}")
     check = b.get("slope_check")
     if check is not None:
         verdict = ("they agree" if check["agree"] else "they disagree beyond both intervals: the simulator's error "
@@ -51,7 +56,13 @@ def markdown(summary: dict) -> str:
                      f"{p['viscosity']:.4g} ({p['viscosity_ci95'][0]:.4g}-{p['viscosity_ci95'][1]:.4g}) | "
                      f"{p['classified']} |")
     joint = summary["joint_fit"]
-    if joint:
+    if joint and joint.get("fitted_to") == "points":
+        lines += ["", f"Laws fitted to the points' flow curve, selected by BIC: **{joint['selected']}**", "",
+                  "| law | χ² | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
+        for name, law in joint["laws"].items():
+            params = "; ".join(format_param(k, v, law["units"][k], law["ci95"][k]) for k, v in law["params"].items())
+            lines.append(f"| {name} | {law['chi2']:.3g} | {law['bic']:.1f} | {params} |")
+    elif joint:
         lines += ["", f"Joint fit over all speeds, selected by BIC: **{joint['selected']}**", "",
                   "| law | loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
         for name, law in joint["laws"].items():
@@ -87,7 +98,8 @@ def plot_all(result, out: Path) -> dict[str, Path]:
               label=f"points' slope {cls.slope.value:.2f} [{cls.slope.ci95[0]:.2f}, {cls.slope.ci95[1]:.2f}]")
     if result.joint is not None:
         for name, fit in result.joint.fits.items():
-            label = f"{name} (joint fit)" + (" *" if name == result.joint.selected else "")
+            kind = "points' fit" if isinstance(result.joint, FlowCurveLaws) else "joint fit"
+            label = f"{name} ({kind})" + (" *" if name == result.joint.selected else "")
             band = log_viscosity_interval(fit.model, fit.theta, result.joint.uncertainty[name].covariance, grid)
             viscosity_band(ax, grid, *band, label, 0.12)
     ax.set_xlabel("effective shear rate [1/s]")

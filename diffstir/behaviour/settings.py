@@ -20,6 +20,9 @@ JOINT_MODELS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley"
 #: What the slope test reads (``classify``, 1 and 4): the per-speed points, the joint power law's index, or the two
 #: combined (the points alone where the power law was not fitted jointly).
 SLOPE_TESTS = ("combined", "points", "joint_index")
+#: How the windows and laws are read: each window and each law fitted through the simulator, or the windows read by
+#: whole-programme simulations and the laws fitted to their flow curve (``flow_laws``).
+ANALYSES = ("simulated", "flow_curve")
 
 
 @dataclass
@@ -27,6 +30,10 @@ class BehaviourSettings:
     """The behaviour experiment's settings (docs/behaviour.md).
 
     Attributes:
+        analysis: ``"simulated"`` (each window's Newtonian fit and each joint law through the simulator) or
+            ``"flow_curve"`` (each recording's windows read by simulations of its whole programme, the laws fitted
+            to their points and the class that of the law they select, ``flow_laws``; ``iterations`` and
+            ``joint_iterations`` unused, ``slope_test`` only without ``joint_models``).
         iterations: Gauss-Newton iterations of each speed window's Newtonian fit.
         speed_tolerance: the relative speed change that still counts as one speed [1]
             (``fitting.speed_windows``).
@@ -43,6 +50,7 @@ class BehaviourSettings:
             disagreement), ``"points"`` or ``"joint_index"`` (needs the power law in ``joint_models``).
     """
 
+    analysis: str = "simulated"
     iterations: int = 3
     speed_tolerance: float = 0.05
     min_window: float = 0.3
@@ -67,8 +75,13 @@ class BehaviourSettings:
                 raise ConfigError(f"behaviour.{name} = {value!r} {unit}; expected a positive number in {unit}")
         check_choices("behaviour.joint_models", self.joint_models, sorted(LAWS))
         check_choice("behaviour.slope_test", self.slope_test, SLOPE_TESTS)
+        check_choice("behaviour.analysis", self.analysis, ANALYSES)
         if self.slope_test == "joint_index" and "power_law" not in self.joint_models:
             raise ConfigError("behaviour.slope_test = 'joint_index' reads the joint power law's index; add power_law "
                               f"to behaviour.joint_models (got {self.joint_models})")
+        if self.slope_test == "joint_index" and self.analysis == "flow_curve":
+            raise ConfigError("behaviour.slope_test = 'joint_index' reads the index of a law fitted through the "
+                              "simulator, which behaviour.analysis = flow_curve does not fit (its class is the law "
+                              "the points select); use slope_test=points or combined")
         checked_model_error(self.model_error, "behaviour.model_error")
         checked_model_error(self.inertial_error, "behaviour.inertial_error")

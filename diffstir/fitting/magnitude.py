@@ -65,6 +65,13 @@ def expected_magnitude(readings: np.ndarray, noise: float) -> np.ndarray:
         -0.5 * (p / noise) ** 2)
 
 
+def magnitude_variance(readings: np.ndarray, noise: float) -> float:
+    """var(mean |p + ε|) [N²] over the samples of ``readings`` p [N] under Gaussian noise of std ``noise`` [N]:
+    mean_i (p_i² + σ² − (E|p_i + ε|)²) / N."""
+    p = np.asarray(readings, dtype=np.float64)
+    return float(np.mean(p**2 + noise**2 - expected_magnitude(p, noise) ** 2)) / p.size
+
+
 @dataclass(frozen=True)
 class MagnitudeEstimate:
     """η̂ [Pa·s] with its 95 % interval (an end is 0 or inf where it was not found), d ln M / d ln η [1] at η̂, the
@@ -118,7 +125,7 @@ def magnitude_estimate(problem: StirProblem, start: float, model_error: float, *
         log_m(float(np.clip(x_hat + 2 * MIN_SECANT, *bounds)))
     slope = _slope_at(points, x_hat)
     p = readings(np.array([x_hat]))[train]
-    mean_variance = float(np.mean(p**2 + noise**2 - expected_magnitude(p, noise) ** 2)) / p.size
+    mean_variance = magnitude_variance(p, noise)
     inertial_share = 1.0 - min(max(slope, 0.0), 1.0)
     sigma = math.sqrt(mean_variance / math.exp(2.0 * target) + model_error**2 + (inertial_error * inertial_share) ** 2)
     first = Z95 * sigma / slope if slope > 0 else math.inf

@@ -143,6 +143,14 @@ def laplace(model: ParameterSet, theta: np.ndarray, jacobian: np.ndarray, residu
     blind = np.any(np.abs(vt[~seen]) > 1e-6, axis=0) if (~seen).any() else np.zeros(k, bool)
     covariance[blind, :] = np.inf
     covariance[:, blind] = np.inf
+    return uncertainty_of(model, theta, covariance, n_eff, math.sqrt(s2))
+
+
+def uncertainty_of(model: ParameterSet, theta: np.ndarray, covariance: np.ndarray, effective_samples: float,
+                   residual_std: float) -> Uncertainty:
+    """The 95 % intervals, identifiability and bound flags (module docstring) that ``covariance`` of θ gives at
+    ``theta`` (infinite rows and columns: directions the data do not see), with the fit's N_eff and residual
+    scale ``residual_std``."""
     se = np.sqrt(np.diag(covariance))
     span = model.upper - model.lower
     near = np.minimum(AT_BOUND * span, Z95 * se)  # θ units
@@ -156,7 +164,7 @@ def laplace(model: ParameterSet, theta: np.ndarray, jacobian: np.ndarray, residu
         identifiable[name] = bool(Z95 * se[j] <= identifiable_half_width(model.scales[j]) and not at_bound[j])
         flags[name] = bool(at_bound[j])
     return Uncertainty(covariance=covariance, ci95=ci95, identifiable=identifiable, at_bound=flags,
-                       effective_samples=n_eff, residual_std=math.sqrt(s2))
+                       effective_samples=effective_samples, residual_std=residual_std)
 
 
 def identifiable_half_width(scale: str) -> float:

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from acceptance_commands import ok, refused, run
+from acceptance_commands import ROOT, ok, refused, run
 
 from diffstir.hardware import load_trajectory
 from diffstir.lab import stirring_programme
@@ -33,6 +33,9 @@ def test_plan_writes_a_programme_that_beats_one_speed_and_the_arm_can_replay(tmp
                                   ramp_time=programme["ramp_time"], sample_rate=100.0)
     assert path.duration == pytest.approx(sum(s["duration"] for s in programme["segments"]), abs=0.011)
     np.testing.assert_allclose(path.xy, expected.xy[: len(path.t)], atol=1e-6)
+    # the shipped programme that the bundled planned example was stirred with is still the default plan's
+    shipped = yaml.safe_load((ROOT / "conf" / "lab" / "programme" / "paper_plan.yaml").read_text())
+    assert shipped == programme
     again = run("diffstir-plan", "out=plan", cwd=tmp_path, timeout=120)
     assert "overwrite=true" in refused(again)
 

@@ -1,0 +1,206 @@
+"""The apparent viscosity of every speed window of one programme, from Newtonian simulations of the whole programme.
+
+A programme holds speeds U_k in windows k = 1..K (``speed_windows``), each read at Metzner and Otto's effective
+shear rate γ̇_k = k_s U_k / a (a: the rod's radius; k_s measured once, ``effective_shear_rate``, on the first
+window). Window k's apparent viscosity η_k is the Newtonian-equivalent viscosity the behaviour experiment's window
+fits read (``apparent``): the Newtonian fluid whose simulation of the whole recording, each window after the
+stretches before it at the arm's speeds and phases, reads the window's samples. One simulation of a Newtonian fluid
+(a rung) reads every window at once, so the rungs form a ladder per window.
+
+1. **Bracket.** Each window's size M̂_k = mean |m_i| is read off its ladder, ln M_k linear in ln η between the two
+   rungs that bracket it (extrapolated from the nearest two, at most ``MAX_STEP`` in ln η beyond), with the
+   sensor's noise share of |m| added to the simulated side (``magnitude.expected_magnitude``). The rungs start at
+   ``START_VISCOSITIES``; while a window's bracket is wider than a factor ``BRACKET``, the windows with the widest
+   get a rung at their estimate (a factor √``BRACKET`` beyond a rung already there, towards the wider side), as
+   many as run side by side, up to ``MAX_RUNGS``.
+2. **Fit.** The window's readings are fitted by p(ln η) + b, the rungs' readings linear in ln η between the two that
+   bracket the estimate and a baseline b [N] with the prior N(0, q²), q the sensor's resolution
+   (``apparent.with_baseline``, the window fits' last step, with their errors: the noise's from the residuals and
+   N_eff, the simulator's σ_m on p and σ_i on its inertial part). The size alone takes the sensor's offset and drift
+   for drag: at the slowest planned speed a window covers a fifth of a turn, the component reading keeps its sign,
+   and the paper sensor's 2 mN offset and 0.5 mN/s drift are 20 % or more of a 0.65 Pa·s fluid's 10 mN drag there.
+   Over a factor 1.5 the readings are straight in ln η to well under the 3 % force error (a Stokes drag ∝ η on top of
+   an inertial part), so the interpolation adds nothing the interval has to hold.
+
+A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
+is not ``resolvable``. A rung's fluid has one viscosity all through the programme, where a thinning fluid was
+thicker during the slower speeds before a window: the window's flow carries that history (the bulk rotation the
+earlier speeds set up) only as far as a Newtonian fluid of its own apparent viscosity would, as in the window fits.
+Reading a flow curve's nodes jointly instead (a tabulated fluid through every window's point, simulated whole) is
+ill-posed: each window's drag averages η over a band of shear rates wider than the factor 2 between the planned
+speeds, so neighbouring nodes trade viscosity against each other (docs/flow-curve.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..mpm import SimConfig
+from ..parallel import Workers
+from .apparent import ViscosityPoint, with_baseline
+from .initial import characteristic_shear_rate, effective_shear_rate
+from .jobs import ReadingJob, mean_readings_on
+from .magnitude import expected_magnitude
+from .models import FitModel
+from .optimise import noise_scale
+from .problem import StirProblem, Windows
+from .windows import SpeedWindow
+
+#: Newtonian viscosities [Pa·s] of the first rungs: the paper's fluids lie within a decade of them.
+START_VISCOSITIES = (0.1, 1.0)
+#: A window is read when the rungs that bracket its size lie within this factor of each other.
+BRACKET = 1.5
+#: Rungs closer than this in ln η count as one [1].
+SAME_RUNG = 0.05
+#: Most rungs of one programme.
+MAX_RUNGS = 8
+#: Largest extrapolation beyond the last rung in ln η [1], and the lowest slope s_k of a resolvable window [1].
+MAX_STEP, MIN_SLOPE = 1.5, 0.05
+#: Simulations of one programme analysis at most: the rungs and the effective shear rate's four.
+PROGRAMME_SIMULATIONS = MAX_RUNGS + 4
+
+
+@dataclass(frozen=True)
+class Rungs:
+    """Newtonian ``viscosities`` [Pa·s] (ascending) and each window's simulated ln M [1] at them, ``log_sizes``
+    (rungs, windows)."""
+
+    viscosities: np.ndarray
+    log_sizes: np.ndarray
+
+    def read(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per window with measured ln M̂ ``target``: ln η, the slope s = d ln M / d ln η of its bracket, and the
+        bracket's width in ln η (inf where extrapolated)."""
+        x = np.log(self.viscosities)
+        log_eta, slope, width = [], [], []
+        for k, y in enumerate(self.log_sizes.T):
+            above = int(np.searchsorted(y, target[k])) if np.all(np.diff(y) > 0) else len(y)
+            j = min(max(above, 1), len(y) - 1)
+            s = (y[j] - y[j - 1]) / (x[j] - x[j - 1])
+            inside = 0 < above < len(y)
+            step = (target[k] - y[j - 1]) / max(s, MIN_SLOPE)
+            log_eta.append(float(np.clip(x[j - 1] + step, x[0] - MAX_STEP, x[-1] + MAX_STEP)))
+            slope.append(float(s))
+            width.append(float(x[j] - x[j - 1]) if inside else math.inf)
+        return np.array(log_eta), np.array(slope), np.array(width)
+
+
+@dataclass(frozen=True)
+class ProgrammeFit:
+    """What ``programme_viscosities`` found: the ``points`` (one per window, in order), the Metzner-Otto constant
+    ``metzner_otto`` k_s [1], the ``rungs``' viscosities [Pa·s] and the ``simulations`` spent."""
+
+    points: list[ViscosityPoint]
+    metzner_otto: float
+    rungs: tuple[float, ...]
+    simulations: int
+
+    def summary(self) -> dict:
+        recording = self.points[0].window.recording
+        return {"recording": str(recording.path or recording.name or "recording"), "metzner_otto": self.metzner_otto,
+                "rungs": list(self.rungs), "simulations": self.simulations,
+                "units": {"rungs": "Pa s"},
+                "meaning": "rungs: the Newtonian viscosities simulated over the whole programme, every window read "
+                           "off them (docs/flow-curve.md)"}
+
+
+def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density: float, *, workers: Workers,
+                          slots: int = 2, model_error: float, inertial_error: float = 0.0,
+                          stage: str = "programme") -> ProgrammeFit:
+    """The apparent viscosity of each of one recording's ``windows`` (module docstring) on the simulation
+    ``config`` for a fluid of ``density`` [kg/m³], the simulations run by ``workers``, ``slots`` rungs at a
+    time; ``model_error`` σ_m and ``inertial_error`` σ_i are the simulator's relative force errors
+    (``fitting.uncertainty``)."""
+    recording = windows[0].recording if windows else None
+    if recording is None or any(w.recording is not recording for w in windows):
+        raise ValueError("programme: expected the speed windows of one recording")
+    end = windows[-1].end
+    problem = StirProblem(recording, config, density, Windows(windows[0].start, end, end))
+    masks = np.array([(problem.times > w.start) & (problem.times <= w.end) for w in windows])
+    noise = noise_scale(problem.measured, recording.sensor.resolution)
+    target = np.log([float(np.mean(np.abs(problem.measured[m]))) for m in masks])
+    readings: dict[float, np.ndarray] = {}
+
+    def simulate(viscosities: list[float]) -> Rungs:
+        jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem, FitModel.named("newtonian", eta=eta))
+                for eta in viscosities]
+        readings.update(zip(viscosities, workers.map(jobs)))
+        etas = np.array(sorted(readings))
+        sizes = [[math.log(float(np.mean(expected_magnitude(readings[eta][m], noise)))) for m in masks]
+                 for eta in etas]
+        return Rungs(etas, np.array(sizes))
+
+    rungs = simulate(list(START_VISCOSITIES))
+    log_eta, slope, width = rungs.read(target)
+    while np.max(width) > math.log(BRACKET) and len(readings) < MAX_RUNGS:
+        new: list[float] = []
+        for k in np.argsort(-width):
+            if len(new) == min(slots, MAX_RUNGS - len(readings)) or width[k] <= math.log(BRACKET):
+                break
+            eta = _next_rung(rungs.viscosities, float(log_eta[k]))
+            if all(abs(math.log(eta / v)) > SAME_RUNG for v in new):
+                new.append(eta)
+        rungs = simulate(new)
+        log_eta, slope, width = rungs.read(target)
+    first = StirProblem(recording, config, density, Windows(windows[0].start, windows[0].end, windows[0].end))
+    k_s = effective_shear_rate(first, float(np.exp(log_eta[0])),
+                               evaluate=lambda models: mean_readings_on(workers, stage, first, models)
+                               ) / characteristic_shear_rate(first)
+    points = []
+    for k, window in enumerate(windows):
+        resolvable = slope[k] > MIN_SLOPE
+        estimate = _waveform_estimate(readings, problem.measured[masks[k]], masks[k], float(log_eta[k]),
+                                      recording.sensor.resolution or 0.0, model_error, inertial_error)
+        x, log_std, model_log_std, baseline, p = estimate
+        points.append(ViscosityPoint(
+            window=window, speed=window.speed, measured_shear_rate=k_s * window.speed / recording.rod.radius,
+            viscosity=math.exp(x), log_std=log_std if resolvable else math.inf,
+            model_log_std=model_log_std if resolvable else math.inf, baseline=baseline, resolvable=bool(resolvable),
+            loss=float(np.mean(np.abs(problem.measured[masks[k]] - p))), evaluations=len(readings) + 4,
+            slice_factor=_slice_factor(problem, math.exp(x))))
+    return ProgrammeFit(points, k_s, tuple(float(v) for v in rungs.viscosities), len(readings) + 4)
+
+
+def _next_rung(viscosities: np.ndarray, log_eta: float) -> float:
+    """The rung [Pa·s] that narrows the bracket of a window read at ln η: at it, or, where a rung stands there
+    already, a factor √``BRACKET`` beyond it towards the farther end of its bracket."""
+    x = np.log(viscosities)
+    nearest = float(x[np.argmin(np.abs(x - log_eta))])
+    if abs(nearest - log_eta) > SAME_RUNG:
+        return math.exp(log_eta)
+    below, above = x[x < nearest - SAME_RUNG], x[x > nearest + SAME_RUNG]
+    gap_below = nearest - below.max() if below.size else math.inf
+    gap_above = above.min() - nearest if above.size else math.inf
+    return math.exp(nearest + (0.5 if gap_above >= gap_below else -0.5) * math.log(BRACKET))
+
+
+def _slice_factor(problem: StirProblem, eta: float) -> float | None:
+    """The slice correction C the rungs' readings carry at viscosity ``eta`` [Pa·s] (``fitting.problem``: the
+    recording's mean stir, one C for every window; None in 3-D)."""
+    correction = problem.slice_correction(FitModel.named("newtonian", eta=eta).material)
+    return None if correction is None else correction.factor
+
+
+def _waveform_estimate(readings: dict[float, np.ndarray], measured: np.ndarray, mask: np.ndarray, log_eta: float,
+                       resolution: float, model_error: float, inertial_error: float
+                       ) -> tuple[float, float, float, float, np.ndarray]:
+    """A window's ln η, its standard errors from the noise and from the simulator, its baseline b [N] and the
+    rungs' readings there [N]: the window's ``measured`` readings [N] fitted by p(ln η) + b, p linear in ln η
+    between the two rungs that bracket it (``apparent.with_baseline``: b's prior N(0, ``resolution``²)), from the
+    size's estimate ``log_eta`` and again in the bracket the estimate moved to, until it stays in its bracket."""
+    etas = sorted(readings)
+    x = np.log(etas)
+    for _ in range(x.size):
+        j = min(max(int(np.searchsorted(x, log_eta)), 1), x.size - 1)
+        low, high = (readings[etas[i]][mask] for i in (j - 1, j))
+        jacobian = (high - low) / (x[j] - x[j - 1])
+        p = low + (log_eta - x[j - 1]) * jacobian
+        log_eta, log_std, model_log_std, baseline = with_baseline(jacobian, measured - p, log_eta, resolution, p,
+                                                                  model_error, inertial_error)
+        log_eta = float(np.clip(log_eta, x[0] - MAX_STEP, x[-1] + MAX_STEP))
+        if min(max(int(np.searchsorted(x, log_eta)), 1), x.size - 1) == j:
+            break
+    return log_eta, log_std, model_log_std, baseline, low + (log_eta - x[j - 1]) * jacobian

@@ -1,0 +1,87 @@
+"""The behaviour experiment's flow-curve analysis (``behaviour.analysis = flow_curve``): each recording's windows read
+by simulations of its whole programme (``fitting.programme``), the laws fitted to the points (``behaviour.flow_laws``).
+The truth here is the fitting model itself (FAST, test_behaviour), so the points must hold it within their
+intervals: what is tested is the iteration and the statistics, not the simulator's accuracy."""
+
+import math
+
+import numpy as np
+import pytest
+from test_behaviour import FAST, lab_fluid_recordings
+
+from diffstir.behaviour import BehaviourSettings, characterise, reclassify
+from diffstir.errors import ConfigError
+from diffstir.fitting import PROGRAMME_SIMULATIONS
+from diffstir.fitting.programme import BRACKET, MAX_RUNGS, Rungs
+
+#: FAST's inertia is its own, so σ_i (the 2.5 mm slice's error against finite elements) is left out (test_behaviour)
+SETTINGS = {"analysis": "flow_curve", "replicates": 50, "inertial_error": 0.0}
+
+
+@pytest.fixture(scope="module")
+def lab_recordings():
+    return lab_fluid_recordings()
+
+
+def test_rungs_read_each_window_between_the_two_that_bracket_it():
+    # ln M = ln(a + b η) per window: between rungs the reading is interpolated linearly in ln η, beyond them
+    # extrapolated from the nearest two, and a window whose reading falls with η has no bracket
+    eta = np.array([0.1, 0.3, 1.0])
+    sizes = np.log(np.array([[0.01 + 0.02 * e, 0.02 + 0.01 * e, 0.05 - 0.01 * e] for e in eta]))
+    rungs = Rungs(eta, sizes)
+    log_eta, slope, width = rungs.read(np.log([0.01 + 0.02 * 0.5, 0.02 + 0.01 * 2.0, 0.045]))
+    x = np.log(eta)
+    expected = x[1] + (np.log(0.02) - sizes[1, 0]) / ((sizes[2, 0] - sizes[1, 0]) / (x[2] - x[1]))
+    assert log_eta[0] == pytest.approx(expected) and width[0] == pytest.approx(x[2] - x[1])
+    # over a bracket of a factor 1.5 the chord's error in ln M is at most h²/32 (h = ln 1.5; ln M's curvature
+    # s (1 − s) ≤ 1/4), 0.5 %, a sixth of the 3 % force error: here s = 1/2 at 0.5 Pa·s
+    near = Rungs(np.array([0.4, 0.6]), np.log(0.02 + 0.02 * np.array([[0.4], [0.6]]) / 0.5))
+    (log_near,), (s_near,), _ = near.read(np.log([0.04]))
+    assert abs(log_near - math.log(0.5)) <= math.log(BRACKET) ** 2 / 32 / s_near
+    assert width[1] == math.inf and log_eta[1] > x[2]
+    assert width[2] == math.inf and slope[2] < 0
+
+
+def test_a_newtonian_programme_reads_its_viscosity_at_every_window_and_is_newtonian(lab_recordings):
+    result = characterise([lab_recordings["newtonian"]], config=FAST, workers=2, settings=BehaviourSettings(**SETTINGS))
+    (fit,) = result.programmes
+    assert fit.simulations <= PROGRAMME_SIMULATIONS and len(fit.rungs) <= MAX_RUNGS
+    brackets = [(max(v for v in fit.rungs if v <= p.viscosity), min(v for v in fit.rungs if v >= p.viscosity))
+                for p in fit.points]
+    assert all(hi / lo <= BRACKET for lo, hi in brackets) or len(fit.rungs) == MAX_RUNGS
+    for p in fit.points:  # the truth is the fitting model: each window's interval holds 0.5 Pa·s
+        lo, hi = p.ci95
+        assert p.resolvable and lo <= 0.5 <= hi
+        assert p.model_log_std >= 0.03 * (1 - 1e-9)  # σ_m / s with s = d ln M / d ln η at most 1
+        assert abs(p.baseline) <= 3 * 0.001  # the truth has no offset: b within 3 σ of its prior N(0, q²)
+    # every law passes through points that agree within their errors: the Newtonian one needs no more parameters
+    assert result.classification.label == "newtonian"
+    assert result.joint.selected == "newtonian"
+    summary = result.summary()
+    assert summary["programmes"][0]["rungs"] == list(fit.rungs)
+    assert reclassify(summary).label == "newtonian"
+
+
+def test_the_flow_curve_analysis_classifies_and_fits_the_laws_to_the_points(lab_recordings):
+    result = characterise([lab_recordings["thinning"]], config=FAST, workers=2,
+                          settings=BehaviourSettings(joint_models=["newtonian", "power_law"], **SETTINGS))
+    assert result.classification.label == "shear_thinning"
+    summary = result.summary()
+    laws = summary["joint_fit"]["laws"]
+    assert summary["joint_fit"]["fitted_to"] == "points" and summary["joint_fit"]["selected"] == "power_law"
+    lo, hi = laws["power_law"]["ci95"]["n"]
+    assert lo <= 0.4 <= hi  # the truth's index (k = 3 Pa·sⁿ, n = 0.4)
+    assert laws["newtonian"]["bic"] - laws["power_law"]["bic"] > 10
+    assert "slope_check" not in summary["behaviour"]  # the points' power law is their own slope
+    assert summary["behaviour"]["laws"]["families"]["power_law"] == "shear_thinning"
+    assert result.classification.confidence == pytest.approx(
+        sum(w for name, w in summary["behaviour"]["laws"]["weights"].items() if name != "newtonian"))
+    assert reclassify(summary).label == "shear_thinning"
+    assert "χ²" in result.report()
+
+
+def test_the_flow_curve_analysis_refuses_the_joint_index_slope_test():
+    with pytest.raises(ConfigError, match="behaviour.slope_test"):
+        BehaviourSettings(analysis="flow_curve", slope_test="joint_index")
+    with pytest.raises(ConfigError, match="behaviour.analysis"):
+        BehaviourSettings(analysis="rheometer")
