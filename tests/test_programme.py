@@ -12,7 +12,7 @@ from test_behaviour import FAST, lab_fluid_recordings
 from diffstir.behaviour import BehaviourSettings, characterise, reclassify
 from diffstir.errors import ConfigError
 from diffstir.fitting import PROGRAMME_SIMULATIONS
-from diffstir.fitting.programme import BRACKET, MAX_RUNGS, Rungs
+from diffstir.fitting.programme import BRACKET, MAX_RUNGS, Rungs, _probe_window
 
 #: FAST's inertia is its own, so σ_i (the 2.5 mm slice's error against finite elements) is left out (test_behaviour)
 SETTINGS = {"analysis": "flow_curve", "replicates": 50, "inertial_error": 0.0}
@@ -40,6 +40,13 @@ def test_rungs_read_each_window_between_the_two_that_bracket_it():
     assert abs(log_near - math.log(0.5)) <= math.log(BRACKET) ** 2 / 32 / s_near
     assert width[1] == math.inf and log_eta[1] > x[2]
     assert width[2] == math.inf and slope[2] < 0
+
+
+def test_k_s_is_measured_on_the_first_window_whose_drag_is_viscous():
+    # a thin fluid's slowest window can read the sensor's noise (its size barely grows with η): the probes of k_s
+    # go to the first window whose size grows at least half as fast as η, else to the fastest-growing one
+    assert _probe_window(np.array([0.1, 0.3, 0.7, 0.9])) == 2
+    assert _probe_window(np.array([0.1, 0.3, 0.2])) == 1
 
 
 def test_a_newtonian_programme_reads_its_viscosity_at_every_window_and_is_newtonian(lab_recordings):

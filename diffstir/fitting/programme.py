@@ -1,11 +1,11 @@
 """The apparent viscosity of every speed window of one programme, from Newtonian simulations of the whole programme.
 
-A programme holds speeds U_k in windows k = 1..K (``speed_windows``), each read at Metzner and Otto's effective
-shear rate γ̇_k = k_s U_k / a (a: the rod's radius; k_s measured once, ``effective_shear_rate``, on the first
-window). Window k's apparent viscosity η_k is the Newtonian-equivalent viscosity the behaviour experiment's window
-fits read (``apparent``): the Newtonian fluid whose simulation of the whole recording, each window after the
-stretches before it at the arm's speeds and phases, reads the window's samples. One simulation of a Newtonian fluid
-(a rung) reads every window at once, so the rungs form a ladder per window.
+A programme holds speeds U_k in windows k = 1..K (``speed_windows``), each read at Metzner and Otto's effective shear
+rate γ̇_k = k_s U_k / a (a: the rod's radius; k_s measured once, ``effective_shear_rate``, on the first window whose
+drag is viscous, ``VISCOUS_SLOPE``). Window k's apparent viscosity η_k is the Newtonian-equivalent viscosity the
+behaviour experiment's window fits read (``apparent``): the Newtonian fluid whose simulation of the whole recording,
+each window after the stretches before it at the arm's speeds and phases, reads the window's samples. One simulation
+of a Newtonian fluid (a rung) reads every window at once, so the rungs form a ladder per window.
 
 1. **Bracket.** Each window's size M̂_k = mean |m_i| is read off its ladder, ln M_k linear in ln η between the two
    rungs that bracket it (extrapolated from the nearest two, at most ``MAX_STEP`` in ln η beyond), with the
@@ -59,6 +59,9 @@ SAME_RUNG = 0.05
 MAX_RUNGS = 8
 #: Largest extrapolation beyond the last rung in ln η [1], and the lowest slope s_k of a resolvable window [1].
 MAX_STEP, MIN_SLOPE = 1.5, 0.05
+#: Slope d ln M / d ln η [1] from which a window's drag counts as viscous, where k_s is measured: at the
+#: slowest speed the drag of a thin fluid can sit at the sensor's resolution, where the probes read noise.
+VISCOUS_SLOPE = 0.5
 #: Simulations of one programme analysis at most: the rungs and the effective shear rate's four.
 PROGRAMME_SIMULATIONS = MAX_RUNGS + 4
 
@@ -145,10 +148,12 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
                 new.append(eta)
         rungs = simulate(new)
         log_eta, slope, width = rungs.read(target)
-    first = StirProblem(recording, config, density, Windows(windows[0].start, windows[0].end, windows[0].end))
-    k_s = effective_shear_rate(first, float(np.exp(log_eta[0])),
-                               evaluate=lambda models: mean_readings_on(workers, stage, first, models)
-                               ) / characteristic_shear_rate(first)
+    probe = _probe_window(slope)
+    window = windows[probe]
+    probed = StirProblem(recording, config, density, Windows(window.start, window.end, window.end))
+    k_s = effective_shear_rate(probed, float(np.exp(log_eta[probe])),
+                               evaluate=lambda models: mean_readings_on(workers, stage, probed, models)
+                               ) / characteristic_shear_rate(probed)
     points = []
     for k, window in enumerate(windows):
         resolvable = slope[k] > MIN_SLOPE
@@ -182,6 +187,13 @@ def _slice_factor(problem: StirProblem, eta: float) -> float | None:
     recording's mean stir, one C for every window; None in 3-D)."""
     correction = problem.slice_correction(FitModel.named("newtonian", eta=eta).material)
     return None if correction is None else correction.factor
+
+
+def _probe_window(slope: np.ndarray) -> int:
+    """The window k_s is measured on: the first whose size grows with η at least half as fast as η
+    (s ≥ ``VISCOUS_SLOPE``: viscous drag), else the one where it grows fastest."""
+    viscous = np.flatnonzero(slope >= VISCOUS_SLOPE)
+    return int(viscous[0]) if viscous.size else int(np.argmax(slope))
 
 
 def _waveform_estimate(readings: dict[float, np.ndarray], measured: np.ndarray, mask: np.ndarray, log_eta: float,
