@@ -85,7 +85,7 @@ def true_class(law: dict, probed: tuple[float, float]) -> str:
     """The class a fluid shows over the probed shear rates [1/s]: yield stress for a law with τ_y > 0, otherwise
     by how its η changes across the band (less than ``NEWTONIAN_CHANGE``: Newtonian there), as
     ``diffstir.fitting.family`` reads a fitted law."""
-    if law["params"].get("tau_y", 0.0) > 0.0:
+    if law.get("params", {}).get("tau_y", 0.0) > 0.0:  # a tabulated curve has no parameters
         return "yield_stress"
     eta = make_fluid_law(law).double()(torch.tensor(probed, dtype=torch.float64)).detach()
     change = float(torch.log(eta[1] / eta[0]))

@@ -37,7 +37,6 @@ from identification_benchmark import CONF, finished, fluid_preset, save, sensor_
 
 from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.fitting import FitSettings
-from diffstir.fitting.family import NEWTONIAN_CHANGE
 from diffstir.identification import identify
 from diffstir.lab import Fluid, make_fluid_law, stirring_programme
 from diffstir.lab.synth import read_truth, simulate_truth
@@ -77,16 +76,14 @@ TABLE_YIELD_SHARE = 0.1
 def truth_family(law: dict, band: tuple[float, float]) -> str:
     """The family ``law`` shows over ``band`` [1/s] (``true_class``); a tabulated curve's from its table: a
     yield stress when a Herschel-Bulkley fit to the table carries ``TABLE_YIELD_SHARE`` of the slowest stress."""
-    if law["name"] != "tabulated":
-        return true_class(law, band)
-    dataset, sample = law["flow_curve"].split("/")
-    curve = load_flow_curves(FLOW_CURVES / f"{dataset}.csv")[sample]
-    fit = fit_flow_curve("herschel_bulkley", curve)
-    eta = make_fluid_law(law).double()(torch.tensor(band, dtype=torch.float64)).detach()
-    if fit.params["tau_y"] > TABLE_YIELD_SHARE * float(eta[0]) * band[0]:
-        return "yield_stress"
-    change = float(torch.log(eta[1] / eta[0]))
-    return "newtonian" if abs(change) < NEWTONIAN_CHANGE else "shear_thinning" if change < 0 else "shear_thickening"
+    if law["name"] == "tabulated":
+        dataset, sample = law["flow_curve"].split("/")
+        fit = fit_flow_curve("herschel_bulkley", load_flow_curves(FLOW_CURVES / f"{dataset}.csv")[sample])
+        with torch.no_grad():
+            slowest = float(make_fluid_law(law).double()(torch.tensor([band[0]], dtype=torch.float64))[0])
+        if fit.params["tau_y"] > TABLE_YIELD_SHARE * slowest * band[0]:
+            return "yield_stress"
+    return true_class(law, band)
 
 
 def programme(name: str) -> tuple[dict, object]:
@@ -200,9 +197,9 @@ def table(rows: list[dict]) -> str:
             lines.append(f"\n{kind}: family right in {sum(r['right'] for r in cases)}/{len(cases)} cases")
     points = [p for r in rows if r["programme"] == "planned" for p in r["points"]]
     if points:
+        errors = [p["error"] for p in points]
         lines.append(f"planned: the truth's viscosity inside the windows' 95 % intervals "
-                     f"{sum(p['holds'] for p in points)}/{len(points)}, errors {min(p['error'] for p in points):+.1%} to "
-                     f"{max(p['error'] for p in points):+.1%}")
+                     f"{sum(p['holds'] for p in points)}/{len(points)}, errors {min(errors):+.1%} to {max(errors):+.1%}")
     held = [c for r in rows if r["programme"] == "planned" for c in r.get("coverage", [])]
     if held:
         lines.append(f"planned: the truth's parameters inside their 95 % intervals {sum(c['holds'] for c in held)}"

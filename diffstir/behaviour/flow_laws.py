@@ -23,8 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fitting import PointsFit, ViscosityPoint, fit_points, law_family, parameter_summary, rank
-from ..rheology import has_yield_stress
-from .joint import yield_share
 
 
 @dataclass
@@ -48,24 +46,11 @@ class FlowCurveLaws:
         return {"selected": self.selected, "ranking": rank(self.bic), "laws": laws, "fitted_to": "points",
                 "criterion": "bic = chi2 + k ln S over the S window points, chi2 of ln η with each point's error"}
 
-    def power_law_slope(self) -> tuple[float, float] | None:
-        """The points' power law's n − 1 [1] and the standard error of n [1]; None without a power law."""
-        if "power_law" not in self.fits:
-            return None
-        fit = self.fits["power_law"]
-        j = fit.model.names.index("n")
-        return float(fit.model.si_of_theta(fit.theta)[j]) - 1.0, float(np.sqrt(fit.uncertainty.covariance[j, j]))
-
     def families(self, band: tuple[float, float], shear_rate: float) -> dict[str, str]:
         """Each law's class over the shear rates ``band`` [1/s] of a stir whose effective shear rate is
         ``shear_rate`` [1/s] (``fitting.law_family``)."""
         return {name: law_family(fit.model, fit.theta, fit.uncertainty, band, shear_rate)["class"]
                 for name, fit in self.fits.items()}
-
-    def yield_shares(self, shear_rate: float) -> dict[str, float]:
-        """Each yield-stress law's share of its stress at ``shear_rate`` [1/s] carried by its yield stress [1]."""
-        return {name: yield_share(fit.model, shear_rate, fit.theta)
-                for name, fit in self.fits.items() if has_yield_stress(name)}
 
 
 def flow_curve_laws(points: list[ViscosityPoint], shear_rates: np.ndarray, names: list[str]) -> FlowCurveLaws:

@@ -61,7 +61,7 @@ class Behaviour(Report):
         points = [{**p.summary(), "shear_rate": float(g), "classified": any(p is q for q in self.used)}
                   for p, g in zip(self.points, self.shear_rates(self.points))]
         behaviour = self.classification.summary()
-        index = None if self.joint is None or isinstance(self.joint, FlowCurveLaws) else self.joint.power_law_slope()
+        index = self.joint.power_law_slope() if isinstance(self.joint, JointFit) else None
         if index is not None:
             behaviour["slope_check"] = slope_agreement(self.classification.slope, SlopeEstimate(*index))
         return {"behaviour": behaviour, "density": self.density,

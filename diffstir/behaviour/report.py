@@ -56,18 +56,15 @@ def markdown(summary: dict) -> str:
                      f"{p['viscosity']:.4g} ({p['viscosity_ci95'][0]:.4g}-{p['viscosity_ci95'][1]:.4g}) | "
                      f"{p['classified']} |")
     joint = summary["joint_fit"]
-    if joint and joint.get("fitted_to") == "points":
-        lines += ["", f"Laws fitted to the points' flow curve, selected by BIC: **{joint['selected']}**", "",
-                  "| law | χ² | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
+    if joint:
+        points = joint.get("fitted_to") == "points"
+        title = "Laws fitted to the points' flow curve" if points else "Joint fit over all speeds"
+        lines += ["", f"{title}, selected by BIC: **{joint['selected']}**", "",
+                  f"| law | {'χ²' if points else 'loss [N]'} | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
         for name, law in joint["laws"].items():
             params = "; ".join(format_param(k, v, law["units"][k], law["ci95"][k]) for k, v in law["params"].items())
-            lines.append(f"| {name} | {law['chi2']:.3g} | {law['bic']:.1f} | {params} |")
-    elif joint:
-        lines += ["", f"Joint fit over all speeds, selected by BIC: **{joint['selected']}**", "",
-                  "| law | loss [N] | BIC | parameters (95 % CI) |", "|---|---|---|---|"]
-        for name, law in joint["laws"].items():
-            params = "; ".join(format_param(k, v, law["units"][k], law["ci95"][k]) for k, v in law["params"].items())
-            lines.append(f"| {name} | {law['loss']:.4g} | {law['bic']:.1f} | {params} |")
+            misfit = f"{law['chi2']:.3g}" if points else f"{law['loss']:.4g}"
+            lines.append(f"| {name} | {misfit} | {law['bic']:.1f} | {params} |")
     return "\n".join(lines) + "\n"
 
 

@@ -14,7 +14,7 @@ from .family import law_family
 from .flow_points import PointsFit, fit_points
 from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, YIELD_SHARES, ViscosityLadder,
                       characteristic_shear_rate, effective_shear_rate, initial_model, initial_models,
-                      mean_stirring_speed, newtonian_embedding)
+                      mean_stirring_speed, metzner_otto_constant, newtonian_embedding)
 from .jobs import FitJob, MagnitudeJob, ReadingJob, mean_readings_on
 from .magnitude import MAGNITUDE_STEPS
 from .models import FitModel
@@ -41,7 +41,7 @@ __all__ = ["COARSE_FORCE_ERROR", "CRITERIA", "DEFAULT_NUISANCES", "FitJob", "Fit
            "YIELD_SHARES", "Z95", "bic", "bic_of_rss", "characteristic_shear_rate", "checked_model_error",
            "effective_samples", "effective_shear_rate", "fit_model", "fit_points", "fit_simulations", "force_error",
            "identifiable_half_width", "initial_model", "initial_models", "lag_response", "laplace", "law_family",
-           "log_viscosity_interval", "mean_readings_on", "mean_stirring_speed", "newtonian_embedding", "noise_scale",
-           "parameter_summary", "parameter_uncertainty", "programme_viscosities", "rank", "rig_from_recording",
-           "select", "speed_windows", "theta_of", "trajectory_from_recording", "value_of", "window_event",
-           "window_simulations", "window_viscosity"]
+           "log_viscosity_interval", "mean_readings_on", "mean_stirring_speed", "metzner_otto_constant",
+           "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty",
+           "programme_viscosities", "rank", "rig_from_recording", "select", "speed_windows", "theta_of",
+           "trajectory_from_recording", "value_of", "window_event", "window_simulations", "window_viscosity"]

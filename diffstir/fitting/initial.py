@@ -154,6 +154,13 @@ def effective_shear_rate(problem: StirProblem, eta_n: float, on_evaluation=None,
     return float(min(max(rate, 0.1 * rate0), 10.0 * rate0))
 
 
+def metzner_otto_constant(problem: StirProblem, eta_n: float, evaluate: MeanReadings | None = None) -> float:
+    """Metzner and Otto's k_s = γ̇_eff / (U/a) [1] of ``problem``'s stir at Newtonian-equivalent viscosity ``eta_n``
+    [Pa·s] (``effective_shear_rate``, its four simulations run by ``evaluate``): a constant of the stirrer and cup
+    in laminar flow."""
+    return effective_shear_rate(problem, eta_n, evaluate=evaluate) / characteristic_shear_rate(problem)
+
+
 #: Shares of the stress at γ̇_eff that a yield-stress law's start gives its yield stress: that of a paste and that
 #: of a liquid near its Newtonian limit. Its loss has a basin near each: from the paste's start alone the bundled
 #: (Carreau) example's fit ran to a nearly plastic index, from the liquid's alone ketchup's lost its yield stress

@@ -41,7 +41,7 @@ import numpy as np
 from ..mpm import SimConfig
 from ..parallel import Workers
 from .apparent import ViscosityPoint, with_baseline
-from .initial import characteristic_shear_rate, effective_shear_rate
+from .initial import SHEAR_RATE_PROBES, metzner_otto_constant
 from .jobs import ReadingJob, mean_readings_on
 from .magnitude import expected_magnitude
 from .models import FitModel
@@ -63,7 +63,7 @@ MAX_STEP, MIN_SLOPE = 1.5, 0.05
 #: slowest speed the drag of a thin fluid can sit at the sensor's resolution, where the probes read noise.
 VISCOUS_SLOPE = 0.5
 #: Simulations of one programme analysis at most: the rungs and the effective shear rate's four.
-PROGRAMME_SIMULATIONS = MAX_RUNGS + 4
+PROGRAMME_SIMULATIONS = MAX_RUNGS + SHEAR_RATE_PROBES
 
 
 @dataclass(frozen=True)
@@ -151,9 +151,9 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
     probe = _probe_window(slope)
     window = windows[probe]
     probed = StirProblem(recording, config, density, Windows(window.start, window.end, window.end))
-    k_s = effective_shear_rate(probed, float(np.exp(log_eta[probe])),
-                               evaluate=lambda models: mean_readings_on(workers, stage, probed, models)
-                               ) / characteristic_shear_rate(probed)
+    k_s = metzner_otto_constant(probed, float(np.exp(log_eta[probe])),
+                                evaluate=lambda models: mean_readings_on(workers, stage, probed, models))
+    simulations = len(readings) + SHEAR_RATE_PROBES
     points = []
     for k, window in enumerate(windows):
         resolvable = slope[k] > MIN_SLOPE
@@ -164,9 +164,9 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
             window=window, speed=window.speed, measured_shear_rate=k_s * window.speed / recording.rod.radius,
             viscosity=math.exp(x), log_std=log_std if resolvable else math.inf,
             model_log_std=model_log_std if resolvable else math.inf, baseline=baseline, resolvable=bool(resolvable),
-            loss=float(np.mean(np.abs(problem.measured[masks[k]] - p))), evaluations=len(readings) + 4,
+            loss=float(np.mean(np.abs(problem.measured[masks[k]] - p))), evaluations=simulations,
             slice_factor=_slice_factor(problem, math.exp(x))))
-    return ProgrammeFit(points, k_s, tuple(float(v) for v in rungs.viscosities), len(readings) + 4)
+    return ProgrammeFit(points, k_s, tuple(float(v) for v in rungs.viscosities), simulations)
 
 
 def _next_rung(viscosities: np.ndarray, log_eta: float) -> float:
@@ -180,6 +180,11 @@ def _next_rung(viscosities: np.ndarray, log_eta: float) -> float:
     gap_below = nearest - below.max() if below.size else math.inf
     gap_above = above.min() - nearest if above.size else math.inf
     return math.exp(nearest + (0.5 if gap_above >= gap_below else -0.5) * math.log(BRACKET))
+
+
+def _bracket(x: np.ndarray, value: float) -> int:
+    """The index j of the segment [x_(j−1), x_j] of ascending ``x`` that holds ``value``, the end one beyond them."""
+    return min(max(int(np.searchsorted(x, value)), 1), x.size - 1)
 
 
 def _slice_factor(problem: StirProblem, eta: float) -> float | None:
@@ -206,13 +211,13 @@ def _waveform_estimate(readings: dict[float, np.ndarray], measured: np.ndarray, 
     etas = sorted(readings)
     x = np.log(etas)
     for _ in range(x.size):
-        j = min(max(int(np.searchsorted(x, log_eta)), 1), x.size - 1)
+        j = _bracket(x, log_eta)
         low, high = (readings[etas[i]][mask] for i in (j - 1, j))
         jacobian = (high - low) / (x[j] - x[j - 1])
         p = low + (log_eta - x[j - 1]) * jacobian
         log_eta, log_std, model_log_std, baseline = with_baseline(jacobian, measured - p, log_eta, resolution, p,
                                                                   model_error, inertial_error)
         log_eta = float(np.clip(log_eta, x[0] - MAX_STEP, x[-1] + MAX_STEP))
-        if min(max(int(np.searchsorted(x, log_eta)), 1), x.size - 1) == j:
+        if _bracket(x, log_eta) == j:
             break
     return log_eta, log_std, model_log_std, baseline, low + (log_eta - x[j - 1]) * jacobian

@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import __version__
 from ..fitting import (SHEAR_RATE_PROBES, FitModel, ReadingJob, StirProblem, ViscosityLadder, Windows,
-                       effective_shear_rate, mean_stirring_speed)
+                       metzner_otto_constant)
 from ..lab.programme import stirring_programme
 from ..mpm import SimConfig, cache_root
 from ..parallel import Workers
@@ -115,11 +115,10 @@ def calibrate(rig: Rig, config: SimConfig, density: float, radius: float, speeds
             probes = [ReadingJob("plan", f"shear-rate{k}", middle, model) for k, model in enumerate(models)]
             return [middle.mean_reading(r) for r in pool.map(probes)]
 
-        rate = effective_shear_rate(middle, reference, evaluate=side_by_side)
+        factor = metzner_otto_constant(middle, reference, evaluate=side_by_side)
     means = [job.problem.mean_reading(r) for job, r in zip(jobs, readings)]
     n = len(viscosities)
     ladders = tuple(ViscosityLadder(tuple(viscosities), tuple(means[k * n:(k + 1) * n])) for k in range(len(speeds)))
-    factor = rate * rig.rod.radius / mean_stirring_speed(middle)
     calibration = Calibration(radius, rig.rod.radius, tuple(float(u) for u in speeds), ladders, factor)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_suffix(f".{os.getpid()}.tmp")
