@@ -175,6 +175,25 @@ def test_the_plan_stirs_several_speeds_and_beats_one_speed_for_a_thinning_prior(
     assert plan.evidence["power_law"]["newtonian"] > one.evidence["power_law"]["newtonian"]
 
 
+def test_the_evidence_counts_each_pair_up_to_its_decision_in_nats():
+    # a Newtonian truth against a power-law rival: the rival fits its points exactly, ΔBIC = (2 - 1) ln S;
+    # power laws of index 0.4-0.5 against a Newtonian rival over a factor 16 of shear rate: ΔBIC far above 10,
+    # counted as 10. The evidence is the mean of min(ΔBIC, 10) / 2 over the two pairs; one speed decides neither.
+    calibration = viscous_calibration()
+    prior = Prior(laws=("newtonian", "power_law"), power_law_index=(0.4, 0.5), draws=4)
+    settings = PlanSettings(speeds=SPEEDS, radius=0.015)
+    planner = Planner(calibration, prior, settings)
+    sweep = Programme.through((0.01, 0.04, 0.16), settings)
+    evidence = planner.evidence(sweep)
+    assert evidence["newtonian"]["power_law"] == pytest.approx(np.full(4, math.log(3)), abs=1e-6)
+    assert np.all(evidence["power_law"]["newtonian"] > 100)
+    assert planner.discrimination(sweep) == pytest.approx((math.log(3) / 2 + 5.0) / 2, abs=1e-6)
+    assert planner.discrimination(Programme.through((0.04,), settings)) == pytest.approx(0.0, abs=1e-6)
+    assessment = planner.assess(sweep)
+    assert assessment.score == pytest.approx(assessment.gain + assessment.discrimination)
+    assert assessment.open_pairs() == [("newtonian", "power_law")]
+
+
 FAST = SimConfig(dim=2, dx=0.01, sound_speed=2.0)  # as tests/test_identify.py: coarse, but the same model
 
 

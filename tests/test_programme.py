@@ -12,7 +12,7 @@ from test_behaviour import FAST, lab_fluid_recordings
 from diffstir.behaviour import BehaviourSettings, characterise, reclassify
 from diffstir.errors import ConfigError
 from diffstir.fitting import PROGRAMME_SIMULATIONS
-from diffstir.fitting.programme import BRACKET, MAX_RUNGS, Rungs, _probe_window
+from diffstir.fitting.programme import BRACKET, MAX_RUNGS, MIN_SLOPE, Rungs, _probe_window
 
 #: FAST's inertia is its own, so σ_i (the 2.5 mm slice's error against finite elements) is left out (test_behaviour)
 SETTINGS = {"analysis": "flow_curve", "replicates": 50, "inertial_error": 0.0}
@@ -40,6 +40,17 @@ def test_rungs_read_each_window_between_the_two_that_bracket_it():
     assert abs(log_near - math.log(0.5)) <= math.log(BRACKET) ** 2 / 32 / s_near
     assert width[1] == math.inf and log_eta[1] > x[2]
     assert width[2] == math.inf and slope[2] < 0
+
+
+def test_a_window_below_a_flat_foot_of_the_ladder_asks_for_no_thinner_rung():
+    # a drag under the sensor's resolution reads the noise floor: the sizes of the thinnest rungs no longer fall
+    # with η, so a thinner rung cannot bracket the window; it is settled (width 0) and not resolvable, where a
+    # window below a foot that still falls with η asks for one (width inf)
+    eta = np.array([0.01, 0.1, 1.0])
+    sizes = np.log(np.array([[0.003 + 1e-5 * e, 0.003 + 0.01 * e] for e in eta]))  # M [N]: floor + drag
+    _, slope, width = Rungs(eta, sizes).read(np.log([0.002, 0.0025]))
+    assert width[0] == 0.0 and slope[0] <= MIN_SLOPE
+    assert width[1] == math.inf and slope[1] > MIN_SLOPE
 
 
 def test_k_s_is_measured_on_the_first_window_whose_drag_is_viscous():

@@ -41,8 +41,8 @@ def main(cfg: DictConfig) -> None:
     paths = result.write(out)
     programme = result.assessment.programme
     print(f"plan: {', '.join(f'{u:g}' for u in programme.speeds)} m/s for {programme.duration:.3g} s each on a "
-          f"{1000 * programme.radius:g} mm circle; {result.assessment.gain:.3g} nats per parameter against "
-          f"{result.baseline.gain:.3g} at {settings.baseline_speed:g} m/s alone ({result.seconds:.0f} s); wrote "
+          f"{1000 * programme.radius:g} mm circle; criterion {result.assessment.score:.3g} nats against "
+          f"{result.baseline.score:.3g} at {settings.baseline_speed:g} m/s alone ({result.seconds:.0f} s); wrote "
           + ", ".join(str(paths[k]) for k in ("md", "programme", "path")))
 
 

@@ -80,7 +80,7 @@ def fit_points(name: str, shear_rate, viscosity, log_std) -> PointsFit:
     model = starts[0]
 
     def residuals(theta: np.ndarray) -> np.ndarray:  # a law can underflow to η = 0 at a trial θ: a huge residual
-        return (target - np.log(np.maximum(model.viscosity(rates, theta)[0], np.finfo(float).tiny))) / sigma
+        return (target - np.log(np.maximum(model.viscosity_values(rates, theta), np.finfo(float).tiny))) / sigma
 
     def jacobian(theta: np.ndarray) -> np.ndarray:
         return -model.viscosity(rates, theta)[1] / sigma[:, None]

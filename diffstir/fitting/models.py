@@ -181,13 +181,22 @@ class FitModel(ThetaParameters):
         """Apparent viscosity [Pa·s] at ``shear_rate`` [1/s] and its gradient d ln η / dθ, (S,) and (S, k),
         at θ (default: the current parameters). The corotated baseline's viscosity is μ Δt at every rate."""
         theta = self.theta() if theta is None else np.asarray(theta, dtype=np.float64)
-        t = torch.tensor(theta, dtype=torch.float64, requires_grad=True)
         rate = torch.as_tensor(np.asarray(shear_rate, dtype=np.float64))
+        t = torch.tensor(theta, dtype=torch.float64)
+        gradient = torch.autograd.functional.jacobian(lambda u: self._viscosity(rate, u).log(), t, vectorize=True)
+        return self.viscosity_values(shear_rate, theta), gradient.numpy().reshape(*rate.shape, len(theta))
+
+    def viscosity_values(self, shear_rate: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """Apparent viscosity [Pa·s] at ``shear_rate`` [1/s] at θ (default: the current parameters), without its
+        gradient."""
+        theta = self.theta() if theta is None else np.asarray(theta, dtype=np.float64)
+        with torch.no_grad():
+            rate = torch.as_tensor(np.asarray(shear_rate, dtype=np.float64))
+            return self._viscosity(rate, torch.as_tensor(theta, dtype=torch.float64)).numpy()
+
+    def _viscosity(self, rate: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         values = {k: (t[i].exp() if s == "log" else t[i]) for i, (k, s) in enumerate(zip(self.names, self.scales))}
-        eta = self.kind.viscosity(rate, values)
-        log_eta = eta.log()
-        grads = [torch.autograd.grad(v, t, retain_graph=True)[0] for v in log_eta.reshape(-1)]
-        return eta.detach().numpy(), torch.stack(grads).numpy().reshape(*rate.shape, len(theta))
+        return self.kind.viscosity(rate, values)
 
     def zero_shear_viscosity(self) -> float:
         """η at zero shear rate [Pa·s] (the law's regularised value for yield-stress laws; μ Δt for corotated)."""

@@ -76,7 +76,8 @@ class Rungs:
 
     def read(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per window with measured ln M̂ ``target``: ln η, the slope s = d ln M / d ln η of its bracket, and the
-        bracket's width in ln η (inf where extrapolated)."""
+        bracket's width in ln η: inf where extrapolated, except below a flat foot of the ladder (s ≤ ``MIN_SLOPE``:
+        the size is the sensor's noise or the inertia, which a thinner rung reads no differently), where it is 0."""
         x = np.log(self.viscosities)
         log_eta, slope, width = [], [], []
         for k, y in enumerate(self.log_sizes.T):
@@ -87,7 +88,8 @@ class Rungs:
             step = (target[k] - y[j - 1]) / max(s, MIN_SLOPE)
             log_eta.append(float(np.clip(x[j - 1] + step, x[0] - MAX_STEP, x[-1] + MAX_STEP)))
             slope.append(float(s))
-            width.append(float(x[j] - x[j - 1]) if inside else math.inf)
+            flat_foot = above == 0 and s <= MIN_SLOPE
+            width.append(float(x[j] - x[j - 1]) if inside else 0.0 if flat_foot else math.inf)
         return np.array(log_eta), np.array(slope), np.array(width)
 
 

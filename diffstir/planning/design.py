@@ -5,15 +5,15 @@ between them, each segment long enough for its ramp, ``settle_time`` and a ``min
 behaviour experiment's shortest, ``behaviour.settings``). The arm's limits bound the levels: |U| ≤ ``max_speed``
 and the centripetal acceleration U² / r ≤ ``max_acceleration``; the cosine ramp between two speeds, whose largest
 acceleration is π ΔU / (2 t_ramp), lasts at least π ΔU_max / (2 ``max_acceleration``). Each candidate is scored by
-the information gain per parameter (``planning.information``), averaged over the prior's laws and draws (robust
-over the prior), and the best one is the plan. The programme stirs up from rest in one direction: under the
+the information gain per parameter (``planning.information``) plus the evidence it is expected to give between
+the laws, both in nats and averaged over the prior's laws and draws (robust over the prior), and the best one is
+the plan. The programme stirs up from rest in one direction: under the
 apparent-viscosity model a window's information depends on its speed only, so reversals and pauses add none to a
 generalized-Newtonian law (they do to thixotropy and elasticity, which no law here has).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -29,8 +29,12 @@ from .information import (Window, WindowErrors, expected_delta_bic, fisher_infor
                           predicted_intervals, window_points)
 from .prior import Prior
 
-#: Prior draws per law that set the prior's precision P (the spread of θ over the prior's box).
-PRECISION_DRAWS = 64
+#: ΔBIC [1] from which a rival law is ruled out very strongly (Kass and Raftery 1995): a pair counts in the
+#: criterion up to it, so pairs every programme decides, or none can, do not tip the choice.
+DECISIVE_DELTA_BIC = 10.0
+
+#: Candidates, the best by information gain, whose expected evidence is computed (each costs 96 rival fits).
+SHORTLIST = 8
 
 
 @dataclass(frozen=True)
@@ -180,27 +184,35 @@ def candidates(settings: PlanSettings) -> list[Programme]:
 @dataclass(frozen=True)
 class Assessment:
     """What a programme is expected to tell: the mean information gain per parameter over the prior (``gain``,
-    nats), each law's mean gain (``law_gains``), each law's predicted 95 % intervals and identifiability at the
-    prior's central fluid (``intervals``: law, parameter, ``ci95`` in SI units and ``identifiable``), its windows'
+    nats), the expected evidence per pair of laws (``discrimination``, nats, ``Planner.discrimination``), each law's
+    mean gain (``law_gains``), each law's predicted 95 % intervals and identifiability at the prior's central fluid (``intervals``: law, parameter, ``ci95`` in SI units and ``identifiable``), its windows'
     shear rates [1/s] (``shear_rates``), and the mean expected ΔBIC of each rival law against each true one over
     the true law's draws (``evidence[true][rival]``)."""
 
     programme: Programme
     gain: float
+    discrimination: float
     law_gains: dict[str, float]
     intervals: dict[str, dict[str, dict]]
     shear_rates: list[float]
     evidence: dict[str, dict[str, float]]
 
+    @property
+    def score(self) -> float:
+        """The criterion [nats]: ``gain`` + ``discrimination``."""
+        return self.gain + self.discrimination
+
     def open_pairs(self) -> list[tuple[str, str]]:
-        """(true, rival) pairs whose expected ΔBIC is below 10: the rival is not ruled out very strongly."""
-        return [(a, b) for a, row in self.evidence.items() for b, d in row.items() if d < 10.0]
+        """(true, rival) pairs whose expected ΔBIC is below ``DECISIVE_DELTA_BIC``: the rival is not ruled out
+        very strongly."""
+        return [(a, b) for a, row in self.evidence.items() for b, d in row.items() if d < DECISIVE_DELTA_BIC]
 
     def to_dict(self) -> dict:
-        return {"programme": self.programme.to_dict(), "gain_per_parameter": self.gain, "law_gains": self.law_gains,
+        return {"programme": self.programme.to_dict(), "score": self.score, "gain_per_parameter": self.gain,
+                "discrimination_per_pair": self.discrimination, "law_gains": self.law_gains,
                 "predicted_ci95": self.intervals, "shear_rates": self.shear_rates,
                 "expected_delta_bic": self.evidence, "open_pairs": [list(p) for p in self.open_pairs()],
-                "units": {"gain_per_parameter": "nats", "shear_rates": "1/s", "radius": "m", "ramp_time": "s",
+                "units": {"score": "nats", "gain_per_parameter": "nats", "discrimination_per_pair": "nats", "shear_rates": "1/s", "radius": "m", "ramp_time": "s",
                           "speed": "m/s", "duration": "s"}}
 
 
@@ -211,7 +223,8 @@ class Planner:
         self.calibration, self.prior, self.settings = calibration, prior, settings
         self.reference_rate = calibration.shear_rate(math.sqrt(settings.levels()[0] * settings.levels()[-1]))
         self.draws = {name: prior.draw(name, self.reference_rate) for name in prior.laws}
-        self.precision = {name: _precision(prior, name, self.reference_rate) for name in prior.laws}
+        self.precision = {name: prior.precision(name, self.reference_rate) for name in prior.laws}
+        self._evidence: dict[Programme, dict[str, dict[str, np.ndarray]]] = {}
 
     def gain(self, programme: Programme) -> tuple[float, dict[str, float]]:
         """The mean information gain per parameter over the laws, and each law's mean over its draws."""
@@ -224,8 +237,28 @@ class Planner:
             law_gains[name] = float(np.mean(gains))
         return float(np.mean(list(law_gains.values()))), law_gains
 
+    def evidence(self, programme: Programme) -> dict[str, dict[str, np.ndarray]]:
+        """The expected ΔBIC [1] of each rival law against each true one, one per draw of the true law
+        (``information.expected_delta_bic``): ``[true][rival]``, computed once per programme."""
+        if programme not in self._evidence:
+            windows, errors = programme.windows(self.settings), self.settings.errors
+            self._evidence[programme] = {
+                a: {b: np.array([expected_delta_bic(truth, self.draws[b][0].copy(), self.draws[b], windows,
+                                                    self.calibration, errors) for truth in self.draws[a]])
+                    for b in self.prior.laws if b != a} for a in self.prior.laws}
+        return self._evidence[programme]
+
+    def discrimination(self, programme: Programme) -> float:
+        """The expected evidence between the laws [nats]: the mean over (true, rival) pairs and the true law's
+        draws of min(ΔBIC, ``DECISIVE_DELTA_BIC``) / 2, ΔBIC / 2 being the log Bayes factor (Schwarz); 0 with a
+        single law."""
+        values = [np.minimum(d, DECISIVE_DELTA_BIC) / 2.0 for row in self.evidence(programme).values()
+                  for d in row.values()]
+        return float(np.mean(values)) if values else 0.0
+
     def assess(self, programme: Programme) -> Assessment:
-        """The programme's gain, predicted intervals, shear rates and expected evidence (``Assessment``)."""
+        """The programme's gain, discrimination, predicted intervals, shear rates and expected evidence
+        (``Assessment``)."""
         windows = programme.windows(self.settings)
         gain, law_gains = self.gain(programme)
         errors = self.settings.errors
@@ -234,21 +267,13 @@ class Planner:
             central = self.prior.central(name, self.reference_rate)
             intervals[name] = predicted_intervals(
                 central, fisher_information(window_points(windows, central, self.calibration, errors)))
-        evidence = {a: {b: float(np.mean([expected_delta_bic(truth, self.draws[b][0].copy(),
-                                                                 self.draws[b], windows, self.calibration, errors)
-                                          for truth in self.draws[a]]))
-                        for b in self.prior.laws if b != a} for a in self.prior.laws}
+        evidence = {a: {b: float(np.mean(d)) for b, d in row.items()} for a, row in self.evidence(programme).items()}
         rates = [self.calibration.shear_rate(u) for u in programme.speeds]
-        return Assessment(programme, gain, law_gains, intervals, rates, evidence)
+        return Assessment(programme, gain, self.discrimination(programme), law_gains, intervals, rates, evidence)
 
     def best(self) -> Programme:
-        """The candidate of the highest gain (the fewest segments among equals)."""
-        scored = [(self.gain(p)[0], -len(p.speeds), p) for p in candidates(self.settings)]
-        return max(scored, key=lambda item: item[:2])[2]
-
-
-def _precision(prior: Prior, name: str, reference_rate: float) -> np.ndarray:
-    """1 / the variance of each θ over ``PRECISION_DRAWS`` draws of law ``name`` (floored at 1e-6)."""
-    wide = dataclasses.replace(prior, draws=PRECISION_DRAWS)
-    theta = np.array([m.theta() for m in wide.draw(name, reference_rate)])
-    return 1.0 / np.maximum(theta.var(axis=0), 1e-6)
+        """Of the ``SHORTLIST`` candidates of the highest gain, the one of the highest gain + discrimination (the
+        fewest segments among equals)."""
+        gains = {p: self.gain(p)[0] for p in candidates(self.settings)}
+        ranked = sorted(gains, key=lambda p: (gains[p], -len(p.speeds)), reverse=True)
+        return max(ranked[:SHORTLIST], key=lambda p: (gains[p] + self.discrimination(p), -len(p.speeds)))

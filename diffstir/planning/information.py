@@ -156,7 +156,7 @@ def expected_delta_bic(truth: FitModel, rival: FitModel, starts: list[FitModel],
     weight = np.array([p.log_slope / p.log_error for p in points])
 
     def residuals(theta: np.ndarray) -> np.ndarray:
-        return (target - np.log(rival.viscosity(rates, theta)[0])) * weight
+        return (target - np.log(np.maximum(rival.viscosity_values(rates, theta), np.finfo(float).tiny))) * weight
 
     def jacobian(theta: np.ndarray) -> np.ndarray:
         return -rival.viscosity(rates, theta)[1] * weight[:, None]

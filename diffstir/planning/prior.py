@@ -16,6 +16,7 @@ seed gives the same plan.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -28,6 +29,8 @@ from ..rheology import LAWS, within_bounds
 
 #: The laws a plan tells apart by default: the identification's (``identification.DEFAULT_MODELS``).
 PLAN_LAWS = ("newtonian", "carreau", "cross", "herschel_bulkley")
+#: Draws per law that set the prior's precision P (the spread of θ over the prior's box).
+PRECISION_DRAWS = 64
 #: Shape coordinates each law draws, after ln η_ref.
 SHAPES = {"newtonian": (), "power_law": ("index",), "carreau": ("index", "time"), "cross": ("index", "time"),
           "herschel_bulkley": ("index", "yield"), "bingham": ("yield",)}
@@ -86,6 +89,13 @@ class Prior:
         sampler = qmc.Sobol(1 + len(shape), scramble=True, seed=self.seed + sorted(LAWS).index(name))
         units = sampler.random(self.draws) if self.draws > 1 else np.full((1, 1 + len(shape)), 0.5)
         return [self.fluid(name, reference_rate, *u) for u in units]
+
+    def precision(self, name: str, reference_rate: float) -> np.ndarray:
+        """The prior's precision P of law ``name``'s θ: 1 / the variance of each θ over ``PRECISION_DRAWS`` draws
+        (floored at 1e-6), the diagonal."""
+        wide = dataclasses.replace(self, draws=PRECISION_DRAWS)
+        theta = np.array([m.theta() for m in wide.draw(name, reference_rate)])
+        return 1.0 / np.maximum(theta.var(axis=0), 1e-6)
 
     def central(self, name: str, reference_rate: float) -> FitModel:
         """The law ``name`` at the middle of every range."""

@@ -40,7 +40,7 @@ class StirPlan(Report):
         return {"plan": self.assessment.to_dict(), "single_speed": self.baseline.to_dict(),
                 "calibration": self.calibration.to_dict(),
                 "prior": {k: list(v) if isinstance(v, tuple) else v for k, v in self.prior.__dict__.items()},
-                "analysis": "diffstir-fit experiment=behaviour recordings=[<the planned recording>]",
+                "analysis": "diffstir-fit experiment=flow_curve recordings=[<the planned recording>]",
                 "seconds": self.seconds}
 
     def report(self) -> str:
@@ -51,7 +51,9 @@ class StirPlan(Report):
                  f"{p.ramp_time:.3g} s; effective shear rates {', '.join(f'{g:.3g}' for g in plan.shear_rates)} 1/s "
                  f"(k_s = {self.calibration.shear_rate_factor:.3g}).",
                  f"- Expected information gain: {plan.gain:.3g} nats per parameter, against {base.gain:.3g} for "
-                 f"{base.programme.speeds[0]:g} m/s alone.",
+                 f"{base.programme.speeds[0]:g} m/s alone; expected evidence between the laws: "
+                 f"{plan.discrimination:.2f} nats per pair, against {base.discrimination:.2f} (the criterion, their "
+                 f"sum: {plan.score:.3g} against {base.score:.3g}).",
                  f"- Analyse the recording with `{self.summary()['analysis']}`.", "",
                  "| law | gain, plan | gain, one speed | predicted 95 % CI at the prior's centre (plan) |",
                  "|---|---|---|---|"]

@@ -1,0 +1,167 @@
+"""The next segment of a stir, chosen from what the stir so far has told (the sequential mode, docs/planning.md).
+
+The stir so far is its window points (γ̇_k [1/s], η_k [Pa·s], σ_k of ln η_k), as the flow-curve analysis reads
+them (``diffstir-fit experiment=flow_curve``, report.json's ``points``). Each candidate law a is fitted to them
+(``fitting.fit_points``) and weighted by its Schwarz weight w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2). A next
+segment at speed U adds one steady window, whose point the window model predicts for each law at its fit
+(``information.window_points``, at the stir's own k_s). The segment is scored as the plan scores a programme, in
+nats, each term averaged over the laws by w_a:
+
+- the information gain about law a's parameters, ½ log det(𝟙 + Λ_a^(−½) I_U Λ_a^(−½)) / k_a, with Λ_a = P_a +
+  Jᵀ W J the precision after the stir so far (the prior's box P_a and the points' information at the fit) and I_U
+  the new window's;
+- the evidence: every law refitted to the points with law a's predicted point added, each rival's ΔBIC against
+  a counted up to ``design.DECISIVE_DELTA_BIC``, / 2, averaged over the rivals.
+
+The stir is decided when the family of the best law (``fitting.law_family`` over the points' shear rates) holds a
+Schwarz weight of at least ``DECIDED``, as the flow-curve analysis states its confidence
+(``Classification.with_law_families``); otherwise its next segment is the best-scored speed whose segment still
+fits the budget.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fitting import PointsFit, fit_points, law_family
+from .calibration import Calibration
+from .design import DECISIVE_DELTA_BIC, PlanSettings
+from .information import Window, window_points
+from .prior import Prior
+
+#: Schwarz weight [1] of the leading family at which the stir is decided: a rival family ~10 behind in BIC.
+DECIDED = 0.99
+
+
+@dataclass(frozen=True)
+class StirSoFar:
+    """A stir's window points: ``speeds`` [m/s], ``shear_rates`` [1/s], ``viscosity`` [Pa·s] and ``log_std``, the
+    standard error of each ln η [1]; ``elapsed`` [s], the stir's length."""
+
+    speeds: tuple[float, ...]
+    shear_rates: tuple[float, ...]
+    viscosity: tuple[float, ...]
+    log_std: tuple[float, ...]
+    elapsed: float
+
+    @classmethod
+    def from_report(cls, summary: dict, elapsed: float) -> "StirSoFar":
+        """The resolved points of a flow-curve report (``Behaviour.summary()``, report.json): the standard error
+        of ln η from each 95 % interval, ln(hi / lo) / (2 · 1.96)."""
+        points = [p for p in summary["points"] if p["viscosity_ci95"][1] not in (None, math.inf)
+                  and p["viscosity_ci95"][0] and p["viscosity_ci95"][1] > p["viscosity_ci95"][0]]
+        return cls(tuple(p["speed"] for p in points), tuple(p["shear_rate"] for p in points),
+                   tuple(p["viscosity"] for p in points),
+                   tuple(math.log(p["viscosity_ci95"][1] / p["viscosity_ci95"][0]) / (2 * 1.959963984540054)
+                         for p in points), float(elapsed))
+
+    @property
+    def shear_rate_factor(self) -> float:
+        """k_s [1] of the stir's points relative to U/a: γ̇_k / U_k, the same for every point (a rod of radius a)."""
+        return float(np.mean(np.array(self.shear_rates) / np.array(self.speeds)))
+
+    def fits(self, laws: tuple[str, ...], extra: tuple[float, float, float] | None = None) -> dict[str, PointsFit]:
+        """Each law fitted to the points, with ``extra`` (γ̇ [1/s], η [Pa·s], σ of ln η [1]) added."""
+        rates, eta, sigma = (list(v) for v in (self.shear_rates, self.viscosity, self.log_std))
+        if extra is not None:
+            rates, eta, sigma = rates + [extra[0]], eta + [extra[1]], sigma + [extra[2]]
+        return {name: fit_points(name, rates, eta, sigma) for name in laws}
+
+
+@dataclass(frozen=True)
+class NextSegment:
+    """What the stir so far calls for: whether its family is ``decided`` (``family`` at Schwarz weight
+    ``confidence``; None and 0 before its points span two shear rates), and otherwise the next segment (``speed`` [m/s] for ``duration`` [s] after a ``ramp_time``
+    [s]; None when the budget has no room for one) with its ``score`` [nats] and every candidate's (``scores``)."""
+
+    decided: bool
+    family: str | None
+    confidence: float
+    speed: float | None
+    duration: float
+    ramp_time: float
+    score: float | None
+    scores: dict[float, float]
+
+    def to_dict(self) -> dict:
+        return {"decided": self.decided, "family": self.family, "confidence": self.confidence,
+                "next": None if self.speed is None else {"speed": self.speed, "duration": self.duration,
+                                                         "ramp_time": self.ramp_time, "score": self.score},
+                "scores": {f"{u:g}": s for u, s in self.scores.items()},
+                "units": {"speed": "m/s", "duration": "s", "ramp_time": "s", "score": "nats"}}
+
+
+def schwarz_weights(fits: dict[str, PointsFit]) -> dict[str, float]:
+    """w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2) [1]."""
+    best = min(fit.bic for fit in fits.values())
+    raw = {name: math.exp(-0.5 * (fit.bic - best)) for name, fit in fits.items()}
+    total = sum(raw.values())
+    return {name: w / total for name, w in raw.items()}
+
+
+def family_weights(so_far: StirSoFar, fits: dict[str, PointsFit]) -> tuple[str | None, dict[str, float]]:
+    """The family of the best law over the points' shear rates and each family's Schwarz weight; no family, and no
+    weights, before the points span two shear rates (one point: every law passes through it)."""
+    rates = np.array(so_far.shear_rates)
+    band = (float(rates.min()), float(rates.max()))
+    if not band[1] > band[0]:
+        return None, {}
+    middle = float(np.exp(np.mean(np.log(rates))))
+    weights = schwarz_weights(fits)
+    families = {name: law_family(fit.model, fit.theta, fit.uncertainty, band, middle)["class"]
+                for name, fit in fits.items()}
+    shares: dict[str, float] = {}
+    for name, w in weights.items():
+        shares[families[name]] = shares.get(families[name], 0.0) + w
+    return families[max(weights, key=weights.get)], shares
+
+
+def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | None = None,
+                 settings: PlanSettings | None = None) -> NextSegment:
+    """Whether ``so_far`` is decided and, if not, its best next segment (module docstring): a speed of
+    ``settings``' levels, held for the plan's segment length (``budget`` / ``max_segments``) when the rest of the
+    budget holds it, on ``calibration``'s rig against ``prior``'s laws."""
+    prior, settings = prior or Prior(), settings or PlanSettings()
+    fits = so_far.fits(prior.laws)
+    family, shares = family_weights(so_far, fits)
+    confidence = shares.get(family, 0.0)
+    duration = settings.budget / settings.max_segments
+    last = so_far.speeds[-1]
+    room = settings.budget - so_far.elapsed >= duration * (1 - 1e-9)
+    if confidence >= DECIDED or not room:
+        return NextSegment(confidence >= DECIDED, family, confidence, None, duration, 0.0, None, {})
+    scores = {}
+    for speed in settings.levels():
+        ramp = settings.arm.ramp_time(abs(speed - last), settings.min_ramp)
+        samples = int((duration - ramp - settings.settle_time) * settings.sample_rate)
+        if samples >= settings.min_window * settings.sample_rate:
+            scores[speed] = float(_score(so_far, fits, Window(speed, samples), calibration, prior, settings))
+    speed = max(scores, key=scores.get)
+    ramp = settings.arm.ramp_time(abs(speed - last), settings.min_ramp)
+    return NextSegment(False, family, confidence, speed, duration, ramp, scores[speed], scores)
+
+
+def _score(so_far: StirSoFar, fits: dict[str, PointsFit], window: Window, calibration: Calibration, prior: Prior,
+           settings: PlanSettings) -> float:
+    """The window's expected information gain plus evidence [nats], averaged over the laws by their weights."""
+    own = dataclasses.replace(calibration, shear_rate_factor=so_far.shear_rate_factor)
+    reference_rate = float(np.exp(np.mean(np.log(so_far.shear_rates))))
+    weights = schwarz_weights(fits)
+    score = 0.0
+    for name, fit in fits.items():
+        (point,) = window_points([window], fit.model, own, settings.errors, fit.theta)
+        if not math.isfinite(point.viscosity_error):
+            continue
+        sigma = np.array(so_far.log_std)
+        jacobian = fit.model.viscosity(np.array(so_far.shear_rates), fit.theta)[1] / sigma[:, None]
+        precision = np.diag(prior.precision(name, reference_rate)) + jacobian.T @ jacobian
+        new = np.outer(point.gradient, point.gradient) / point.log_error**2
+        gain = 0.5 * (np.linalg.slogdet(precision + new)[1] - np.linalg.slogdet(precision)[1]) / fit.model.size
+        refits = so_far.fits(tuple(fits), (point.shear_rate, point.viscosity, point.viscosity_error))
+        rivals = [min(refits[b].bic - refits[name].bic, DECISIVE_DELTA_BIC) / 2.0 for b in refits if b != name]
+        score += weights[name] * (gain + (float(np.mean(rivals)) if rivals else 0.0))
+    return score

@@ -1,0 +1,71 @@
+"""The sequential mode (``planning.sequential``): the next segment from the stir so far, against closed forms."""
+
+import math
+
+import numpy as np
+import pytest
+from test_planning import viscous_calibration
+
+from diffstir.fitting import FitModel
+from diffstir.planning import PlanSettings, Prior, Window, window_points
+from diffstir.planning.sequential import DECIDED, StirSoFar, next_segment
+
+SETTINGS = PlanSettings(speeds=(0.01, 0.02, 0.04, 0.08, 0.16), radius=0.015)
+CALIBRATION = viscous_calibration(inertial=0.01)
+
+
+def stir_of(law: FitModel, speeds, log_std=0.03, elapsed=None) -> StirSoFar:
+    """Points that lie on ``law`` exactly, each with the error ``log_std`` of ln η."""
+    rates = [CALIBRATION.shear_rate(u) for u in speeds]
+    eta = law.viscosity_values(np.array(rates))
+    return StirSoFar(tuple(speeds), tuple(rates), tuple(float(v) for v in eta), (log_std,) * len(speeds),
+                     2.0 * len(speeds) if elapsed is None else elapsed)
+
+
+def test_a_thinning_and_a_newtonian_stir_over_a_decade_are_decided():
+    thinning = next_segment(stir_of(FitModel.named("power_law", k=1.0, n=0.5), (0.01, 0.04, 0.16)), CALIBRATION)
+    assert thinning.decided and thinning.family == "shear_thinning" and thinning.confidence >= DECIDED
+    assert thinning.speed is None
+    newtonian = next_segment(stir_of(FitModel.named("newtonian", eta=0.65), (0.01, 0.04, 0.16)), CALIBRATION)
+    assert newtonian.decided and newtonian.family == "newtonian"
+
+
+def test_one_point_decides_nothing_and_its_gain_is_lindleys():
+    # one law (no rival, no evidence): the next window's score is ½ ln((Λ + s²/σ_U²) / Λ) with Λ the prior's
+    # precision plus the point's 1/σ²; every law passes through one point, so no family is named yet
+    prior = Prior(laws=("newtonian",))
+    law = FitModel.named("newtonian", eta=0.65)
+    so_far = stir_of(law, (0.04,), log_std=0.05)
+    step = next_segment(so_far, CALIBRATION, prior, SETTINGS)
+    assert not step.decided and step.family is None and step.confidence == 0.0
+    assert step.duration == pytest.approx(SETTINGS.budget / SETTINGS.max_segments)
+    assert step.speed in SETTINGS.levels() and step.score == max(step.scores.values())
+    rate = CALIBRATION.shear_rate(0.04)
+    precision = prior.precision("newtonian", rate)[0] + 1 / 0.05**2
+    for speed, score in step.scores.items():
+        ramp = SETTINGS.arm.ramp_time(abs(speed - 0.04), SETTINGS.min_ramp)
+        samples = int((step.duration - ramp - SETTINGS.settle_time) * SETTINGS.sample_rate)
+        (point,) = window_points([Window(speed, samples)], law, CALIBRATION, SETTINGS.errors)
+        information = point.gradient[0] ** 2 / point.log_error**2
+        assert score == pytest.approx(0.5 * math.log((precision + information) / precision), rel=1e-9)
+
+
+def test_an_undecided_stir_asks_for_a_segment_while_the_budget_holds_one():
+    # two points 1.5 apart in ln γ̇ with 30 % errors cannot tell a weak thinning from a Newtonian fluid
+    law = FitModel.named("power_law", k=1.0, n=0.9)
+    step = next_segment(stir_of(law, (0.02, 0.04), log_std=0.3), CALIBRATION, settings=SETTINGS)
+    assert not step.decided and step.speed in SETTINGS.levels()
+    assert step.ramp_time >= SETTINGS.min_ramp
+    spent = next_segment(stir_of(law, (0.02, 0.04), log_std=0.3, elapsed=7.0), CALIBRATION, settings=SETTINGS)
+    assert not spent.decided and spent.speed is None and not spent.scores
+
+
+def test_a_report_gives_its_resolved_points_with_their_errors():
+    z = 1.959963984540054
+    summary = {"points": [
+        {"speed": 0.01, "shear_rate": 0.9, "viscosity": 1.0, "viscosity_ci95": [0.0, math.inf]},
+        {"speed": 0.04, "shear_rate": 3.6, "viscosity": 0.5, "viscosity_ci95": [0.5 * math.exp(-0.1 * z),
+                                                                                0.5 * math.exp(0.1 * z)]}]}
+    so_far = StirSoFar.from_report(summary, elapsed=4.0)
+    assert so_far.speeds == (0.04,) and so_far.log_std == (pytest.approx(0.1),)
+    assert so_far.shear_rate_factor == pytest.approx(90.0) and so_far.elapsed == 4.0
