@@ -68,4 +68,4 @@ def test_a_report_gives_its_resolved_points_with_their_errors():
                                                                                 0.5 * math.exp(0.1 * z)]}]}
     so_far = StirSoFar.from_report(summary, elapsed=4.0)
     assert so_far.speeds == (0.04,) and so_far.log_std == (pytest.approx(0.1),)
-    assert so_far.shear_rate_factor == pytest.approx(90.0) and so_far.elapsed == 4.0
+    assert so_far.rate_per_speed == pytest.approx(90.0) and so_far.elapsed == 4.0  # k_s / a [1/m]

@@ -93,18 +93,22 @@ class StirPlan(Report):
     def write(self, out: str | Path) -> dict[str, Path]:
         """``plan.json``, ``plan.md``, ``plan.png``, ``lab/programme/planned.yaml`` (``diffstir-synth --config-dir
         OUT lab/programme=planned``) and ``stir_path.csv`` in ``out``."""
-        paths = super().write(out)
-        programme = self.assessment.programme
-        paths["programme"] = Path(out) / PROGRAMME
-        paths["programme"].parent.mkdir(parents=True, exist_ok=True)
-        paths["programme"].write_text("# diffstir-synth lab/programme: the planned stir (diffstir-plan)\n"
-                                      + yaml.safe_dump(programme.to_dict(), sort_keys=False))
-        path = stirring_programme(programme.segments(), radius=programme.radius, ramp_time=programme.ramp_time,
-                                  sample_rate=PATH_RATE)
-        paths["path"] = Path(out) / "stir_path.csv"
-        np.savetxt(paths["path"], np.column_stack([path.t, path.xy]), delimiter=",", header="t,x,y", comments="",
-                   fmt="%.6f")
-        return paths
+        return {**super().write(out), **write_programme(self.assessment.programme.to_dict(), out)}
+
+
+def write_programme(programme: dict, out: str | Path) -> dict[str, Path]:
+    """``programme`` (radius [m], ramp_time [s], segments of speed [m/s] and duration [s]) in ``out`` as
+    ``PROGRAMME`` (a ``lab/programme`` option) and ``stir_path.csv``, the rod's path (t [s], x, y [m]) at
+    ``PATH_RATE`` for the arm."""
+    paths = {"programme": Path(out) / PROGRAMME, "path": Path(out) / "stir_path.csv"}
+    paths["programme"].parent.mkdir(parents=True, exist_ok=True)
+    paths["programme"].write_text("# diffstir-synth lab/programme: the planned stir (diffstir-plan)\n"
+                                  + yaml.safe_dump(programme, sort_keys=False))
+    path = stirring_programme(programme["segments"], radius=programme["radius"], ramp_time=programme["ramp_time"],
+                              start_angle=programme.get("start_angle", 0.0), sample_rate=PATH_RATE)
+    np.savetxt(paths["path"], np.column_stack([path.t, path.xy]), delimiter=",", header="t,x,y", comments="",
+               fmt="%.6f")
+    return paths
 
 
 def _interval(entry: dict) -> str:

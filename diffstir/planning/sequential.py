@@ -16,7 +16,8 @@ nats, each term averaged over the laws by w_a:
 The stir is decided when the family of the best law (``fitting.law_family`` over the points' shear rates) holds a
 Schwarz weight of at least ``DECIDED``, as the flow-curve analysis states its confidence
 (``Classification.with_law_families``); otherwise its next segment is the best-scored speed whose segment still
-fits the budget.
+fits the budget. The programme so far grows by that segment (``extended``), with one ramp time for every step:
+the programme's, or the new step's where the arm needs longer.
 """
 
 from __future__ import annotations
@@ -60,8 +61,8 @@ class StirSoFar:
                          for p in points), float(elapsed))
 
     @property
-    def shear_rate_factor(self) -> float:
-        """k_s [1] of the stir's points relative to U/a: γ̇_k / U_k, the same for every point (a rod of radius a)."""
+    def rate_per_speed(self) -> float:
+        """γ̇_k / U_k [1/m] of the stir's points, k_s / a: the same for every point (one k_s, a rod of radius a)."""
         return float(np.mean(np.array(self.shear_rates) / np.array(self.speeds)))
 
     def fits(self, laws: tuple[str, ...], extra: tuple[float, float, float] | None = None) -> dict[str, PointsFit]:
@@ -147,21 +148,30 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
 
 def _score(so_far: StirSoFar, fits: dict[str, PointsFit], window: Window, calibration: Calibration, prior: Prior,
            settings: PlanSettings) -> float:
-    """The window's expected information gain plus evidence [nats], averaged over the laws by their weights."""
-    own = dataclasses.replace(calibration, shear_rate_factor=so_far.shear_rate_factor)
+    """The window's expected information gain plus evidence [nats], averaged over the laws by their weights; a law
+    under which the window reads no viscosity (its drag at the noise or inertial floor) gains nothing from it and
+    keeps the evidence of the points so far."""
+    own = dataclasses.replace(calibration, shear_rate_factor=so_far.rate_per_speed * calibration.rod_radius)
     reference_rate = float(np.exp(np.mean(np.log(so_far.shear_rates))))
     weights = schwarz_weights(fits)
+    sigma = np.array(so_far.log_std)
     score = 0.0
     for name, fit in fits.items():
         (point,) = window_points([window], fit.model, own, settings.errors, fit.theta)
-        if not math.isfinite(point.viscosity_error):
-            continue
-        sigma = np.array(so_far.log_std)
-        jacobian = fit.model.viscosity(np.array(so_far.shear_rates), fit.theta)[1] / sigma[:, None]
-        precision = np.diag(prior.precision(name, reference_rate)) + jacobian.T @ jacobian
-        new = np.outer(point.gradient, point.gradient) / point.log_error**2
-        gain = 0.5 * (np.linalg.slogdet(precision + new)[1] - np.linalg.slogdet(precision)[1]) / fit.model.size
-        refits = so_far.fits(tuple(fits), (point.shear_rate, point.viscosity, point.viscosity_error))
+        gain, refits = 0.0, fits
+        if math.isfinite(point.viscosity_error):
+            jacobian = fit.model.viscosity(np.array(so_far.shear_rates), fit.theta)[1] / sigma[:, None]
+            precision = np.diag(prior.precision(name, reference_rate)) + jacobian.T @ jacobian
+            new = np.outer(point.gradient, point.gradient) / point.log_error**2
+            gain = 0.5 * (np.linalg.slogdet(precision + new)[1] - np.linalg.slogdet(precision)[1]) / fit.model.size
+            refits = so_far.fits(tuple(fits), (point.shear_rate, point.viscosity, point.viscosity_error))
         rivals = [min(refits[b].bic - refits[name].bic, DECISIVE_DELTA_BIC) / 2.0 for b in refits if b != name]
         score += weights[name] * (gain + (float(np.mean(rivals)) if rivals else 0.0))
     return score
+
+
+def extended(programme: dict, step: NextSegment) -> dict:
+    """``programme`` (a ``conf/lab/programme`` mapping: radius [m], ramp_time [s], segments) with ``step``'s segment
+    appended."""
+    segments = [dict(s) for s in programme["segments"]] + [{"speed": step.speed, "duration": step.duration}]
+    return {**programme, "ramp_time": max(float(programme["ramp_time"]), step.ramp_time), "segments": segments}
