@@ -1,13 +1,12 @@
-"""The sequential mode in the virtual lab: stir, analyse, plan the next segment, until the family is decided or the
+"""The sequential mode in the virtual lab: stir, analyse, plan the next stir, until the family is decided or the
 budget is spent (docs/planning.md, The sequential mode).
 
-Each step simulates the truth of the whole programme so far on ``conf/lab/sim/truth2d.yaml`` (2-D MPM, 2 mm cells,
-finer than the fit: truth 2-D MPM), reads it through the paper's sensor (``conf/lab/sensor/paper.yaml``, seed
-``--seed``), analyses it as ``diffstir-fit experiment=flow_curve`` does, and asks ``planning.next_segment`` for the
-next speed, as ``diffstir-plan after=REPORT programme=YAML`` does, with the paper rig's shipped calibration. The
-first stir holds two speeds (``--first``, a factor 4 apart by default) for half a segment each: the flow-curve
-analysis needs two resolved speeds. A real stir goes on where it stopped; the virtual lab simulates the programme
-again from rest, the same motion.
+Each stir's truth is simulated on ``conf/lab/sim/truth2d.yaml`` (2-D MPM, 2 mm cells, finer than the fit: truth
+2-D MPM) and read through the paper's sensor (``conf/lab/sensor/paper.yaml``, seed ``--seed`` + the stir's index).
+The stirs so far are analysed together as ``diffstir-fit experiment=flow_curve recordings=[...]`` does, and
+``planning.next_segment`` gives the next stir, as ``diffstir-plan after=REPORT`` does, with the paper rig's shipped
+calibration. The first stir holds two speeds (``--first``, a factor 4 apart by default) for half a segment each:
+the flow-curve analysis needs two resolved speeds; each later stir holds one speed from rest.
 
     python scripts/sequential_stir.py --fluid carreau_example --out FILE.json [--first 0.02 0.08] [--seed 0]
 """
@@ -30,7 +29,7 @@ from diffstir.lab import stirring_programme
 from diffstir.lab.synth import read_truth, simulate_truth
 from diffstir.planning import PlanSettings, Prior
 from diffstir.planning.calibration import SHIPPED, Calibration
-from diffstir.planning.sequential import StirSoFar, extended, next_segment
+from diffstir.planning.sequential import StirSoFar, next_segment
 
 
 def main() -> None:
@@ -49,37 +48,39 @@ def main() -> None:
     ramp = settings.arm.ramp_time(max(args.first), settings.min_ramp)
     programme = {"radius": settings.radius, "ramp_time": ramp, "start_angle": 0.0,
                  "segments": [{"speed": u, "duration": duration / 2} for u in args.first]}
-    steps = []
+    steps, recordings = [], []
     while True:
         started = time.perf_counter()
         trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
                                         ramp_time=programme["ramp_time"])
         truth = simulate_truth(fluid, trajectory, sim_config=sim("lab/sim/truth2d.yaml"))
-        recording = read_truth(truth, sensor_preset("paper"), seed=args.seed, name=args.fluid).recording
+        recordings.append(read_truth(truth, sensor_preset("paper"), seed=args.seed + len(recordings),
+                                     name=f"{args.fluid}_{len(recordings)}").recording)
         simulated = time.perf_counter() - started
-        result = characterise([recording], config=sim("sim/slice2d.yaml"), workers=args.workers,
+        result = characterise(recordings, config=sim("sim/slice2d.yaml"), workers=args.workers,
                               settings=BehaviourSettings(analysis="flow_curve"))
         summary = result.summary()
-        elapsed = sum(s["duration"] for s in programme["segments"])
-        step = next_segment(StirSoFar.from_report(summary, elapsed), calibration, prior, settings)
+        so_far = StirSoFar.from_report(summary)
+        planning = time.perf_counter()
+        step = next_segment(so_far, calibration, prior, settings)
+        planned = time.perf_counter() - planning
         rates = [p["shear_rate"] for p in summary["points"]]
-        steps.append({"fluid": args.fluid, "seed": args.seed, "segments": programme["segments"], "elapsed": elapsed,
-                      "truth_family": truth_family(fluid.law, (min(rates), max(rates))) if len(rates) > 1 else None,
+        steps.append({"fluid": args.fluid, "seed": args.seed, "programme": programme, "elapsed": so_far.elapsed,
+                      "truth_family": truth_family(fluid.law, (min(rates), max(rates))),
                       "analysis_class": summary["behaviour"]["class"],
                       "analysis_confidence": summary["behaviour"]["confidence"],
                       "points": [{k: p[k] for k in ("speed", "shear_rate", "viscosity", "viscosity_ci95")}
                                  for p in summary["points"]],
-                      "step": step.to_dict(), "truth_seconds": simulated,
+                      "step": step.to_dict(), "truth_seconds": simulated, "plan_seconds": planned,
                       "seconds": time.perf_counter() - started,
                       "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"),
                       "machine": f"{platform.machine()}, {args.workers} processes of 1 torch thread"})
         args.out.write_text(json.dumps(steps, indent=1, default=float))
-        print(f"{elapsed:g} s: {step.family} ({step.confidence:.3g}), next "
+        print(f"{so_far.elapsed:.3g} s: {step.family} ({step.confidence:.3g}), next "
               f"{'-' if step.speed is None else f'{step.speed:g} m/s'}, {steps[-1]['seconds']:.0f} s", flush=True)
         if step.speed is None:
             break
-        programme = extended(programme, step)
-
+        programme = step.programme(settings.radius)
 
 if __name__ == "__main__":
     main()

@@ -43,7 +43,7 @@ def test_one_point_decides_nothing_and_its_gain_is_lindleys():
     rate = CALIBRATION.shear_rate(0.04)
     precision = prior.precision("newtonian", rate)[0] + 1 / 0.05**2
     for speed, score in step.scores.items():
-        ramp = SETTINGS.arm.ramp_time(abs(speed - 0.04), SETTINGS.min_ramp)
+        ramp = SETTINGS.arm.ramp_time(speed, SETTINGS.min_ramp)  # from rest
         samples = int((step.duration - ramp - SETTINGS.settle_time) * SETTINGS.sample_rate)
         (point,) = window_points([Window(speed, samples)], law, CALIBRATION, SETTINGS.errors)
         information = point.gradient[0] ** 2 / point.log_error**2
@@ -60,12 +60,25 @@ def test_an_undecided_stir_asks_for_a_segment_while_the_budget_holds_one():
     assert not spent.decided and spent.speed is None and not spent.scores
 
 
-def test_a_report_gives_its_resolved_points_with_their_errors():
+def test_a_report_gives_its_resolved_points_with_their_errors_and_its_recordings_length():
     z = 1.959963984540054
     summary = {"points": [
-        {"speed": 0.01, "shear_rate": 0.9, "viscosity": 1.0, "viscosity_ci95": [0.0, math.inf]},
-        {"speed": 0.04, "shear_rate": 3.6, "viscosity": 0.5, "viscosity_ci95": [0.5 * math.exp(-0.1 * z),
-                                                                                0.5 * math.exp(0.1 * z)]}]}
-    so_far = StirSoFar.from_report(summary, elapsed=4.0)
-    assert so_far.speeds == (0.04,) and so_far.log_std == (pytest.approx(0.1),)
-    assert so_far.rate_per_speed == pytest.approx(90.0) and so_far.elapsed == 4.0  # k_s / a [1/m]
+        {"window": "a@0.19-1s", "end": 1.0, "speed": 0.01, "shear_rate": 0.9, "viscosity": 1.0,
+         "viscosity_ci95": [0.0, math.inf]},
+        {"window": "a@1.19-2s", "end": 2.0, "speed": 0.04, "shear_rate": 3.6, "viscosity": 0.5,
+         "viscosity_ci95": [0.5 * math.exp(-0.1 * z), 0.5 * math.exp(0.1 * z)]},
+        {"window": "b@0.39-2s", "end": 2.0, "speed": 0.16, "shear_rate": 14.4, "viscosity": 0.3,
+         "viscosity_ci95": [0.3 * math.exp(-0.2 * z), 0.3 * math.exp(0.2 * z)]}]}
+    so_far = StirSoFar.from_report(summary)
+    assert so_far.speeds == (0.04, 0.16) and so_far.log_std == (pytest.approx(0.1), pytest.approx(0.2))
+    assert so_far.rate_per_speed == pytest.approx(90.0)  # k_s / a [1/m]
+    assert so_far.elapsed == 4.0  # two recordings of 2 s, the unresolved window's counted
+
+
+def test_the_next_stir_starts_from_rest():
+    law = FitModel.named("power_law", k=1.0, n=0.9)
+    step = next_segment(stir_of(law, (0.02, 0.04), log_std=0.3), CALIBRATION, settings=SETTINGS)
+    assert step.ramp_time == SETTINGS.arm.ramp_time(step.speed, SETTINGS.min_ramp)
+    programme = step.programme(0.015)
+    assert programme["segments"] == [{"speed": step.speed, "duration": step.duration}]
+    assert programme["radius"] == 0.015 and programme["ramp_time"] == step.ramp_time

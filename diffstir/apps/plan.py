@@ -2,10 +2,10 @@
 
     diffstir-plan out=outputs/plan
     diffstir-plan prior.viscosity=[0.01,1] plan.budget=6 plan.radius=0.02
-    diffstir-plan after=outputs/fit/report.json programme=outputs/plan/lab/programme/planned.yaml out=outputs/next
+    diffstir-plan after=outputs/fit/report.json out=outputs/next
 
-With ``after``, the sequential mode: the next segment of the stir whose flow-curve report that is
-(``planning.sequential``), or that its family is decided.
+With ``after``, the sequential mode: the next stir after the stirs whose flow-curve report that is
+(``planning.sequential``), or that their family is decided.
 """
 
 from __future__ import annotations
@@ -15,18 +15,16 @@ import json
 from pathlib import Path
 
 import torch
-import yaml
 from tqdm import tqdm
 from hydra.utils import instantiate, to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 
 from diffstir.apps import Run, check_processes, command, config_workers
 from diffstir.errors import ConfigError, OutputError
-from diffstir.lab import stirring_programme
 from diffstir.mpm import SimConfig
 from diffstir.planning import ArmLimits, PlanSettings, Prior, plan, rig_calibration
 from diffstir.planning.result import PROGRAMME, write_programme
-from diffstir.planning.sequential import StirSoFar, extended, next_segment
+from diffstir.planning.sequential import StirSoFar, next_segment
 from diffstir.rig import Rig
 
 #: The files a plan writes, and those of the sequential mode's next segment.
@@ -60,11 +58,9 @@ def main(cfg: DictConfig) -> None:
 
 def plan_next(cfg: DictConfig, rig: Rig, sim_config: SimConfig, prior: Prior, settings: PlanSettings,
               out: Path) -> None:
-    """The sequential mode: ``next.json``, and, unless the stir is decided or its budget spent, the programme
-    grown by the next segment and its path."""
-    so_far, programme = stir_so_far(cfg)
-    settings = dataclasses.replace(settings, radius=float(programme["radius"]))
-    settings.check_rig(rig)
+    """The sequential mode: ``next.json``, and, unless the stir is decided or its budget spent, the next stir's
+    programme and path."""
+    so_far = stir_so_far(Path(to_absolute_path(str(cfg.after))))
     with CalibrationProgress() as progress:
         calibration = rig_calibration(rig, prior, settings, sim_config, workers=config_workers(cfg),
                                       cache_dir=cfg.cache_dir, report=progress)
@@ -73,43 +69,32 @@ def plan_next(cfg: DictConfig, rig: Rig, sim_config: SimConfig, prior: Prior, se
     (out / "next.json").write_text(json.dumps({**step.to_dict(), "elapsed": so_far.elapsed}, indent=2) + "\n")
     if step.speed is None:
         state = f"decided: {step.family}" if step.decided else f"not decided ({step.family}), the budget spent"
-        print(f"plan: {state}, confidence {step.confidence:.3g} after {so_far.elapsed:g} s; wrote {out / 'next.json'}")
+        print(f"plan: {state}, confidence {step.confidence:.3g} after {so_far.elapsed:.3g} s of stirring; wrote "
+              f"{out / 'next.json'}")
         return
-    paths = write_programme(extended(programme, step), out)
-    print(f"plan: next {step.speed:g} m/s for {step.duration:.3g} s ({step.score:.3g} nats; so far "
+    paths = write_programme(step.programme(settings.radius), out)
+    print(f"plan: next stir {step.speed:g} m/s for {step.duration:.3g} s ({step.score:.3g} nats; so far "
           f"{step.family or 'no family'}, confidence {step.confidence:.3g}); wrote {out / 'next.json'}, "
           f"{paths['programme']}, {paths['path']}")
 
 
-def stir_so_far(cfg: DictConfig) -> tuple[StirSoFar, dict]:
-    """The flow-curve report ``after`` and the ``programme`` it stirred, each checked in one line."""
-    report_path = Path(to_absolute_path(str(cfg.after)))
+def stir_so_far(path: Path) -> StirSoFar:
+    """The stir so far from its flow-curve report ``path``, checked in one line."""
     expected = "expected the report.json of diffstir-fit experiment=flow_curve"
     try:
-        summary = json.loads(report_path.read_text())
+        summary = json.loads(path.read_text())
     except (OSError, ValueError) as error:
-        raise ConfigError(f"after={report_path}: unreadable ({type(error).__name__}); {expected}") from None
+        raise ConfigError(f"after={path}: unreadable ({type(error).__name__}); {expected}") from None
     if not (isinstance(summary, dict) and isinstance(summary.get("joint_fit"), dict)
             and summary["joint_fit"].get("fitted_to") == "points" and isinstance(summary.get("points"), list)):
-        raise ConfigError(f"{report_path}: joint_fit.fitted_to is not 'points'; {expected}")
-    if cfg.programme is None:
-        raise ConfigError("programme: missing; with after=, give the programme that stir ran (its lab/programme "
-                          "YAML, e.g. OUT/lab/programme/planned.yaml)")
-    programme_path = Path(to_absolute_path(str(cfg.programme)))
+        raise ConfigError(f"{path}: joint_fit.fitted_to is not 'points'; {expected}")
     try:
-        programme = yaml.safe_load(programme_path.read_text())
-        stirring_programme(programme["segments"], radius=programme["radius"], ramp_time=programme["ramp_time"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as error:
-        raise ConfigError(f"programme={programme_path}: unreadable ({type(error).__name__}); expected a "
-                          "lab/programme YAML: radius [m], ramp_time [s], segments of speed [m/s] and duration [s]") \
-            from None
-    except ValueError as error:
-        raise ConfigError(f"programme={programme_path}: {error}") from None
-    so_far = StirSoFar.from_report(summary, elapsed=sum(float(seg["duration"]) for seg in programme["segments"]))
+        so_far = StirSoFar.from_report(summary)
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
+        raise ConfigError(f"{path}: points: unreadable ({type(error).__name__}: {error}); {expected}") from None
     if not so_far.speeds:
-        raise ConfigError(f"{report_path}: points: no window with a finite interval; the stir so far resolved no "
-                          "viscosity")
-    return so_far, programme
+        raise ConfigError(f"{path}: points: no window with a finite interval; the stir so far resolved no viscosity")
+    return so_far
 
 
 class CalibrationProgress:

@@ -16,8 +16,9 @@ nats, each term averaged over the laws by w_a:
 The stir is decided when the family of the best law (``fitting.law_family`` over the points' shear rates) holds a
 Schwarz weight of at least ``DECIDED``, as the flow-curve analysis states its confidence
 (``Classification.with_law_families``); otherwise its next segment is the best-scored speed whose segment still
-fits the budget. The programme so far grows by that segment (``extended``), with one ramp time for every step:
-the programme's, or the new step's where the arm needs longer.
+fits the budget. The segment is a stir of its own from rest: the analysis that plans it takes minutes, in which the
+rod rests and the fluid stops, so each step is a recording, and the analysis reads all of them together. From rest
+is also how the plan's window model is calibrated.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fitting import PointsFit, fit_points, law_family
+from ..fitting import Z95, PointsFit, fit_points, law_family
 from .calibration import Calibration
 from .design import DECISIVE_DELTA_BIC, PlanSettings
 from .information import Window, window_points
@@ -41,7 +42,7 @@ DECIDED = 0.99
 @dataclass(frozen=True)
 class StirSoFar:
     """A stir's window points: ``speeds`` [m/s], ``shear_rates`` [1/s], ``viscosity`` [Pa·s] and ``log_std``, the
-    standard error of each ln η [1]; ``elapsed`` [s], the stir's length."""
+    standard error of each ln η [1]; ``elapsed`` [s], the length of its recordings together."""
 
     speeds: tuple[float, ...]
     shear_rates: tuple[float, ...]
@@ -50,15 +51,20 @@ class StirSoFar:
     elapsed: float
 
     @classmethod
-    def from_report(cls, summary: dict, elapsed: float) -> "StirSoFar":
-        """The resolved points of a flow-curve report (``Behaviour.summary()``, report.json): the standard error
-        of ln η from each 95 % interval, ln(hi / lo) / (2 · 1.96)."""
+    def from_report(cls, summary: dict) -> "StirSoFar":
+        """The resolved points of a flow-curve report (``Behaviour.summary()``, report.json), the standard error of
+        ln η from each 95 % interval, ln(hi / lo) / (2 Z95); the stir's length, the sum over its recordings of the
+        last window's end (a window is labelled ``<recording>@<start>-<end>s``)."""
+        ends: dict[str, float] = {}
+        for p in summary["points"]:
+            recording = p["window"].rsplit("@", 1)[0]
+            ends[recording] = max(ends.get(recording, 0.0), float(p["end"]))
         points = [p for p in summary["points"] if p["viscosity_ci95"][1] not in (None, math.inf)
                   and p["viscosity_ci95"][0] and p["viscosity_ci95"][1] > p["viscosity_ci95"][0]]
         return cls(tuple(p["speed"] for p in points), tuple(p["shear_rate"] for p in points),
                    tuple(p["viscosity"] for p in points),
-                   tuple(math.log(p["viscosity_ci95"][1] / p["viscosity_ci95"][0]) / (2 * 1.959963984540054)
-                         for p in points), float(elapsed))
+                   tuple(math.log(p["viscosity_ci95"][1] / p["viscosity_ci95"][0]) / (2 * Z95) for p in points),
+                   sum(ends.values()))
 
     @property
     def rate_per_speed(self) -> float:
@@ -76,8 +82,9 @@ class StirSoFar:
 @dataclass(frozen=True)
 class NextSegment:
     """What the stir so far calls for: whether its family is ``decided`` (``family`` at Schwarz weight
-    ``confidence``; None and 0 before its points span two shear rates), and otherwise the next segment (``speed`` [m/s] for ``duration`` [s] after a ``ramp_time``
-    [s]; None when the budget has no room for one) with its ``score`` [nats] and every candidate's (``scores``)."""
+    ``confidence``; None and 0 before its points span two shear rates), and otherwise the next stir (``speed``
+    [m/s] held for ``duration`` [s] after a ``ramp_time`` [s] from rest; None when the budget has no room for
+    one) with its ``score`` [nats] and every candidate's (``scores``)."""
 
     decided: bool
     family: str | None
@@ -87,6 +94,11 @@ class NextSegment:
     ramp_time: float
     score: float | None
     scores: dict[float, float]
+
+    def programme(self, radius: float) -> dict:
+        """The next stir as a ``conf/lab/programme`` mapping on a circle of ``radius`` [m]."""
+        return {"radius": radius, "ramp_time": self.ramp_time, "start_angle": 0.0,
+                "segments": [{"speed": self.speed, "duration": self.duration}]}
 
     def to_dict(self) -> dict:
         return {"decided": self.decided, "family": self.family, "confidence": self.confidence,
@@ -123,26 +135,25 @@ def family_weights(so_far: StirSoFar, fits: dict[str, PointsFit]) -> tuple[str |
 
 def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | None = None,
                  settings: PlanSettings | None = None) -> NextSegment:
-    """Whether ``so_far`` is decided and, if not, its best next segment (module docstring): a speed of
-    ``settings``' levels, held for the plan's segment length (``budget`` / ``max_segments``) when the rest of the
-    budget holds it, on ``calibration``'s rig against ``prior``'s laws."""
+    """Whether ``so_far`` is decided and, if not, its best next stir (module docstring): a speed of ``settings``'
+    levels, reached from rest and held for the plan's segment length (``budget`` / ``max_segments``) when the rest
+    of the budget holds it, on ``calibration``'s rig against ``prior``'s laws."""
     prior, settings = prior or Prior(), settings or PlanSettings()
     fits = so_far.fits(prior.laws)
     family, shares = family_weights(so_far, fits)
     confidence = shares.get(family, 0.0)
     duration = settings.budget / settings.max_segments
-    last = so_far.speeds[-1]
     room = settings.budget - so_far.elapsed >= duration * (1 - 1e-9)
     if confidence >= DECIDED or not room:
         return NextSegment(confidence >= DECIDED, family, confidence, None, duration, 0.0, None, {})
     scores = {}
     for speed in settings.levels():
-        ramp = settings.arm.ramp_time(abs(speed - last), settings.min_ramp)
+        ramp = settings.arm.ramp_time(speed, settings.min_ramp)
         samples = int((duration - ramp - settings.settle_time) * settings.sample_rate)
         if samples >= settings.min_window * settings.sample_rate:
             scores[speed] = float(_score(so_far, fits, Window(speed, samples), calibration, prior, settings))
     speed = max(scores, key=scores.get)
-    ramp = settings.arm.ramp_time(abs(speed - last), settings.min_ramp)
+    ramp = settings.arm.ramp_time(speed, settings.min_ramp)
     return NextSegment(False, family, confidence, speed, duration, ramp, scores[speed], scores)
 
 
@@ -169,9 +180,3 @@ def _score(so_far: StirSoFar, fits: dict[str, PointsFit], window: Window, calibr
         score += weights[name] * (gain + (float(np.mean(rivals)) if rivals else 0.0))
     return score
 
-
-def extended(programme: dict, step: NextSegment) -> dict:
-    """``programme`` (a ``conf/lab/programme`` mapping: radius [m], ramp_time [s], segments) with ``step``'s segment
-    appended."""
-    segments = [dict(s) for s in programme["segments"]] + [{"speed": step.speed, "duration": step.duration}]
-    return {**programme, "ramp_time": max(float(programme["ramp_time"]), step.ramp_time), "segments": segments}

@@ -48,35 +48,32 @@ def test_a_bad_prior_is_refused_in_one_line_before_any_simulation(tmp_path):
 
 
 def flow_curve_report(points: list[tuple[float, float, float, float]]) -> dict:
-    """A flow-curve report.json's fields the sequential mode reads: (speed [m/s], γ̇ [1/s], η [Pa·s], σ of ln η)."""
+    """A flow-curve report.json's fields the sequential mode reads, one recording of 2 s segments: (speed [m/s],
+    γ̇ [1/s], η [Pa·s], σ of ln η)."""
     return {"joint_fit": {"fitted_to": "points"},
-            "points": [{"speed": u, "shear_rate": g, "viscosity": eta,
+            "points": [{"window": f"stir@{2 * k + 0.4:g}-{2 * k + 2:g}s", "end": 2.0 * k + 2, "speed": u,
+                        "shear_rate": g, "viscosity": eta,
                         "viscosity_ci95": [eta * math.exp(-1.96 * s), eta * math.exp(1.96 * s)]}
-                       for u, g, eta, s in points]}
+                       for k, (u, g, eta, s) in enumerate(points)]}
 
 
-def test_the_sequential_mode_grows_an_undecided_stir_by_one_segment(tmp_path):
+def test_the_sequential_mode_plans_the_next_stir_of_an_undecided_one(tmp_path):
     # two points a factor 2 apart with 30 % errors: no family is decided, and 4 s of the 8 s budget are left
     (tmp_path / "report.json").write_text(json.dumps(flow_curve_report([(0.02, 1.8, 0.9, 0.3),
                                                                         (0.04, 3.6, 0.8, 0.3)])))
-    so_far = {"radius": 0.015, "ramp_time": 0.2, "start_angle": 0.0,
-              "segments": [{"speed": 0.02, "duration": 2.0}, {"speed": 0.04, "duration": 2.0}]}
-    (tmp_path / "so_far.yaml").write_text(yaml.safe_dump(so_far))
-    ok(run("diffstir-plan", "after=report.json", "programme=so_far.yaml", "out=next", cwd=tmp_path, timeout=600))
+    ok(run("diffstir-plan", "after=report.json", "out=next", cwd=tmp_path, timeout=600))
     step = json.loads((tmp_path / "next" / "next.json").read_text())
     assert not step["decided"] and step["elapsed"] == 4.0
     assert step["next"]["speed"] in (0.01, 0.02, 0.04, 0.08, 0.16) and step["next"]["duration"] == 2.0
     assert step["next"]["score"] == max(step["scores"].values())
-    grown = yaml.safe_load((tmp_path / "next" / "lab" / "programme" / "planned.yaml").read_text())
-    assert grown["segments"][:2] == so_far["segments"]
-    assert grown["segments"][2] == {"speed": step["next"]["speed"], "duration": 2.0}
+    programme = yaml.safe_load((tmp_path / "next" / "lab" / "programme" / "planned.yaml").read_text())
+    assert programme["segments"] == [{"speed": step["next"]["speed"], "duration": 2.0}]
     path = load_trajectory(tmp_path / "next" / "stir_path.csv")
-    assert path.duration == pytest.approx(6.0, abs=0.011)
+    assert path.duration == pytest.approx(2.0, abs=0.011)
 
 
 def test_the_sequential_mode_refuses_a_report_that_is_not_a_flow_curve_in_one_line(tmp_path):
     (tmp_path / "report.json").write_text(json.dumps({"joint_fit": {"fitted_to": "recordings"}, "points": []}))
-    line = refused(run("diffstir-plan", "after=report.json", "programme=none.yaml", "out=next", cwd=tmp_path,
-                       timeout=120))
+    line = refused(run("diffstir-plan", "after=report.json", "out=next", cwd=tmp_path, timeout=120))
     assert "joint_fit.fitted_to is not 'points'; expected the report.json of diffstir-fit experiment=flow_curve" in line
     assert not (tmp_path / "next").exists()
