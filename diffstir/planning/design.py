@@ -7,9 +7,9 @@ and the centripetal acceleration U² / r ≤ ``max_acceleration``; the cosine ra
 acceleration is π ΔU / (2 t_ramp), lasts at least π ΔU_max / (2 ``max_acceleration``). Each candidate is scored by
 the information gain per parameter (``planning.information``) plus the evidence it is expected to give between
 the laws, both in nats and averaged over the prior's laws and draws (robust over the prior), and the best one is
-the plan. The programme stirs up from rest in one direction: under the
-apparent-viscosity model a window's information depends on its speed only, so reversals and pauses add none to a
-generalized-Newtonian law (they do to thixotropy and elasticity, which no law here has).
+the plan (``Planner.best``). The programme stirs up from rest in one direction: under the apparent-viscosity model
+a window's information depends on its speed only, so reversals and pauses add none to a generalized-Newtonian law
+(they do to thixotropy and elasticity, which no law here has).
 """
 
 from __future__ import annotations
@@ -185,9 +185,10 @@ def candidates(settings: PlanSettings) -> list[Programme]:
 class Assessment:
     """What a programme is expected to tell: the mean information gain per parameter over the prior (``gain``,
     nats), the expected evidence per pair of laws (``discrimination``, nats, ``Planner.discrimination``), each law's
-    mean gain (``law_gains``), each law's predicted 95 % intervals and identifiability at the prior's central fluid (``intervals``: law, parameter, ``ci95`` in SI units and ``identifiable``), its windows'
-    shear rates [1/s] (``shear_rates``), and the mean expected ΔBIC of each rival law against each true one over
-    the true law's draws (``evidence[true][rival]``)."""
+    mean gain (``law_gains``), each law's predicted 95 % intervals and identifiability at the prior's central fluid
+    (``intervals``: law, parameter, ``ci95`` in SI units and ``identifiable``), its windows' shear rates [1/s]
+    (``shear_rates``), and the mean expected ΔBIC of each rival law against each true one over the true law's draws
+    (``evidence[true][rival]``)."""
 
     programme: Programme
     gain: float
@@ -212,8 +213,8 @@ class Assessment:
                 "discrimination_per_pair": self.discrimination, "law_gains": self.law_gains,
                 "predicted_ci95": self.intervals, "shear_rates": self.shear_rates,
                 "expected_delta_bic": self.evidence, "open_pairs": [list(p) for p in self.open_pairs()],
-                "units": {"score": "nats", "gain_per_parameter": "nats", "discrimination_per_pair": "nats", "shear_rates": "1/s", "radius": "m", "ramp_time": "s",
-                          "speed": "m/s", "duration": "s"}}
+                "units": {"score": "nats", "gain_per_parameter": "nats", "discrimination_per_pair": "nats",
+                          "shear_rates": "1/s", "radius": "m", "ramp_time": "s", "speed": "m/s", "duration": "s"}}
 
 
 class Planner:

@@ -152,6 +152,8 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
         samples = int((duration - ramp - settings.settle_time) * settings.sample_rate)
         if samples >= settings.min_window * settings.sample_rate:
             scores[speed] = float(_score(so_far, fits, Window(speed, samples), calibration, prior, settings))
+    if not scores:  # no level leaves its ramp, settling and a window within the segment
+        return NextSegment(False, family, confidence, None, duration, 0.0, None, {})
     speed = max(scores, key=scores.get)
     ramp = settings.arm.ramp_time(speed, settings.min_ramp)
     return NextSegment(False, family, confidence, speed, duration, ramp, scores[speed], scores)
