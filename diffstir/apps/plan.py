@@ -68,7 +68,8 @@ def plan_next(cfg: DictConfig, rig: Rig, sim_config: SimConfig, prior: Prior, se
     Run.writes(out, *NEXT_FILES)
     (out / "next.json").write_text(json.dumps({**step.to_dict(), "elapsed": so_far.elapsed}, indent=2) + "\n")
     if step.speed is None:
-        state = f"decided: {step.family}" if step.decided else f"not decided ({step.family}); no stir fits the budget left"
+        state = (f"decided: {step.family}" if step.decided
+                 else f"not decided ({step.family}); no stir fits the budget left")
         print(f"plan: {state}, confidence {step.confidence:.3g} after {so_far.elapsed:.3g} s of stirring; wrote "
               f"{out / 'next.json'}")
         return
