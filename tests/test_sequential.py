@@ -8,7 +8,7 @@ from test_planning import viscous_calibration
 
 from diffstir.fitting import FitModel
 from diffstir.planning import PlanSettings, Prior, Window, window_points
-from diffstir.planning.sequential import DECIDED, StirSoFar, next_segment
+from diffstir.planning.sequential import DECIDED, StirSoFar, next_segment, shortest_stir
 
 SETTINGS = PlanSettings(speeds=(0.01, 0.02, 0.04, 0.08, 0.16), radius=0.015)
 CALIBRATION = viscous_calibration(inertial=0.01)
@@ -38,13 +38,13 @@ def test_one_point_decides_nothing_and_its_gain_is_lindleys():
     so_far = stir_of(law, (0.04,), log_std=0.05)
     step = next_segment(so_far, CALIBRATION, prior, SETTINGS)
     assert not step.decided and step.family is None and step.confidence == 0.0
-    assert step.duration == pytest.approx(SETTINGS.budget / SETTINGS.max_segments)
     assert step.speed in SETTINGS.levels() and step.score == max(step.scores.values())
     rate = CALIBRATION.shear_rate(0.04)
     precision = prior.precision("newtonian", rate)[0] + 1 / 0.05**2
     for speed, score in step.scores.items():
         ramp = SETTINGS.arm.ramp_time(speed, SETTINGS.min_ramp)  # from rest
-        samples = int((step.duration - ramp - SETTINGS.settle_time) * SETTINGS.sample_rate)
+        duration = shortest_stir(speed, SETTINGS.budget / SETTINGS.max_segments, ramp, SETTINGS)
+        samples = int((duration - ramp - SETTINGS.settle_time) * SETTINGS.sample_rate)
         (point,) = window_points([Window(speed, samples)], law, CALIBRATION, SETTINGS.errors)
         information = point.gradient[0] ** 2 / point.log_error**2
         assert score == pytest.approx(0.5 * math.log((precision + information) / precision), rel=1e-9)
@@ -82,3 +82,14 @@ def test_the_next_stir_starts_from_rest():
     programme = step.programme(0.015)
     assert programme["segments"] == [{"speed": step.speed, "duration": step.duration}]
     assert programme["radius"] == 0.015 and programme["ramp_time"] == step.ramp_time
+
+
+def test_a_slow_stir_lasts_a_turn_of_the_circle_as_a_recording_must():
+    # a recording spans one stirring period (recording.validate): from rest on a 15 mm circle, about one turn,
+    # 2 pi r / U, plus the ramp's lost travel and the 0.1 s steps; a fast stir keeps the plan's 2 s segment, and
+    # 0.01 m/s, whose turn takes 9.4 s, does not fit the 8 s budget
+    for speed in (0.02, 0.04):
+        turn = 2 * math.pi * SETTINGS.radius / speed
+        assert turn <= shortest_stir(speed, 2.0, 0.2, SETTINGS) <= turn + 0.2 + 0.1
+    assert shortest_stir(0.16, 2.0, 0.2, SETTINGS) == 2.0
+    assert shortest_stir(0.01, 2.0, 0.2, SETTINGS) == math.inf

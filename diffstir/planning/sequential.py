@@ -18,7 +18,9 @@ Schwarz weight of at least ``DECIDED``, as the flow-curve analysis states its co
 (``Classification.with_law_families``); otherwise its next segment is the best-scored speed whose segment still
 fits the budget. The segment is a stir of its own from rest: the analysis that plans it takes minutes, in which the
 rod rests and the fluid stops, so each step is a recording, and the analysis reads all of them together. From rest
-is also how the plan's window model is calibrated.
+is also how the plan's window model is calibrated. A recording must span one stirring period (``recording
+.validate``), about a turn of the circle, so a slow speed's stir lasts longer than the plan's segment
+(``shortest_stir``) and costs the budget that much more.
 """
 
 from __future__ import annotations
@@ -30,6 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fitting import Z95, PointsFit, fit_points, law_family
+from ..lab.programme import stirring_programme
+from ..recording import stirring_frequency
+from ..recording.validate import MIN_DURATION
 from .calibration import Calibration
 from .design import DECISIVE_DELTA_BIC, PlanSettings
 from .information import Window, window_points
@@ -83,8 +88,8 @@ class StirSoFar:
 class NextSegment:
     """What the stir so far calls for: whether its family is ``decided`` (``family`` at Schwarz weight
     ``confidence``; None and 0 before its points span two shear rates), and otherwise the next stir (``speed``
-    [m/s] held for ``duration`` [s] after a ``ramp_time`` [s] from rest; None when the budget has no room for
-    one) with its ``score`` [nats] and every candidate's (``scores``)."""
+    [m/s] for ``duration`` [s], its ramp ``ramp_time`` [s] from rest included; None when the budget left holds
+    none) with its ``score`` [nats] and every candidate's (``scores``)."""
 
     decided: bool
     family: str | None
@@ -136,27 +141,46 @@ def family_weights(so_far: StirSoFar, fits: dict[str, PointsFit]) -> tuple[str |
 def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | None = None,
                  settings: PlanSettings | None = None) -> NextSegment:
     """Whether ``so_far`` is decided and, if not, its best next stir (module docstring): a speed of ``settings``'
-    levels, reached from rest and held for the plan's segment length (``budget`` / ``max_segments``) when the rest
-    of the budget holds it, on ``calibration``'s rig against ``prior``'s laws."""
+    levels from rest for the plan's segment length (``budget`` / ``max_segments``) or, where a recording needs
+    longer, its ``shortest_stir``, within the budget left, on ``calibration``'s rig against ``prior``'s laws."""
     prior, settings = prior or Prior(), settings or PlanSettings()
     fits = so_far.fits(prior.laws)
     family, shares = family_weights(so_far, fits)
     confidence = shares.get(family, 0.0)
-    duration = settings.budget / settings.max_segments
-    room = settings.budget - so_far.elapsed >= duration * (1 - 1e-9)
-    if confidence >= DECIDED or not room:
-        return NextSegment(confidence >= DECIDED, family, confidence, None, duration, 0.0, None, {})
-    scores = {}
+    segment = settings.budget / settings.max_segments
+    left = settings.budget - so_far.elapsed
+    if confidence >= DECIDED:
+        return NextSegment(True, family, confidence, None, segment, 0.0, None, {})
+    scores, durations = {}, {}
     for speed in settings.levels():
         ramp = settings.arm.ramp_time(speed, settings.min_ramp)
+        duration = shortest_stir(speed, segment, ramp, settings)
+        if not duration <= left * (1 + 1e-9):
+            continue
         samples = int((duration - ramp - settings.settle_time) * settings.sample_rate)
         if samples >= settings.min_window * settings.sample_rate:
+            durations[speed] = duration
             scores[speed] = float(_score(so_far, fits, Window(speed, samples), calibration, prior, settings))
-    if not scores:  # no level leaves its ramp, settling and a window within the segment
-        return NextSegment(False, family, confidence, None, duration, 0.0, None, {})
+    if not scores:  # the budget left holds no valid stir with its ramp, settling and a window
+        return NextSegment(False, family, confidence, None, segment, 0.0, None, {})
     speed = max(scores, key=scores.get)
     ramp = settings.arm.ramp_time(speed, settings.min_ramp)
-    return NextSegment(False, family, confidence, speed, duration, ramp, scores[speed], scores)
+    return NextSegment(False, family, confidence, speed, durations[speed], ramp, scores[speed], scores)
+
+
+def shortest_stir(speed: float, least: float, ramp_time: float, settings: PlanSettings) -> float:
+    """The shortest stir [s] from rest at ``speed`` [m/s] on ``settings``' circle, of at least ``least`` [s] and in
+    steps of 0.1 s, whose recording spans one stirring period as a recording must (``recording.validate``: at least
+    ``MIN_DURATION`` and 1 / f, f the frequency ``stirring_frequency`` estimates from the path); inf where no stir
+    within ``settings.budget`` does."""
+    for tenths in range(math.ceil(least * 10 - 1e-9), math.floor(settings.budget * 10 + 1e-9) + 1):
+        duration = tenths / 10
+        path = stirring_programme([{"speed": speed, "duration": duration}], radius=settings.radius,
+                                  ramp_time=min(ramp_time, duration), sample_rate=settings.sample_rate)
+        frequency = stirring_frequency(path.t, path.xy[:, 0], path.xy[:, 1])
+        if frequency > 0 and duration >= max(MIN_DURATION, 1.0 / frequency):
+            return duration
+    return math.inf
 
 
 def _score(so_far: StirSoFar, fits: dict[str, PointsFit], window: Window, calibration: Calibration, prior: Prior,

@@ -64,12 +64,13 @@ def test_the_sequential_mode_plans_the_next_stir_of_an_undecided_one(tmp_path):
     ok(run("diffstir-plan", "after=report.json", "out=next", cwd=tmp_path, timeout=600))
     step = json.loads((tmp_path / "next" / "next.json").read_text())
     assert not step["decided"] and step["elapsed"] == 4.0
-    assert step["next"]["speed"] in (0.01, 0.02, 0.04, 0.08, 0.16) and step["next"]["duration"] == 2.0
-    assert step["next"]["score"] == max(step["scores"].values())
+    speed, duration = step["next"]["speed"], step["next"]["duration"]
+    assert speed in (0.02, 0.04, 0.08, 0.16)  # 0.01 m/s: a recording's turn of the circle takes 9.4 s, over 4 s
+    assert 2.0 <= duration <= 4.0 and step["next"]["score"] == max(step["scores"].values())
     programme = yaml.safe_load((tmp_path / "next" / "lab" / "programme" / "planned.yaml").read_text())
-    assert programme["segments"] == [{"speed": step["next"]["speed"], "duration": 2.0}]
+    assert programme["segments"] == [{"speed": speed, "duration": duration}]
     path = load_trajectory(tmp_path / "next" / "stir_path.csv")
-    assert path.duration == pytest.approx(2.0, abs=0.011)
+    assert path.duration == pytest.approx(duration, abs=0.011)
 
 
 def test_the_sequential_mode_refuses_a_report_that_is_not_a_flow_curve_in_one_line(tmp_path):
