@@ -65,7 +65,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from ..fitting import Z95
+from ..fitting import Z95, schwarz_weights
 from ..rheology import FlowCurve, fit_flow_curve, has_yield_stress
 
 CLASSES = ("newtonian", "shear_thinning", "shear_thickening", "yield_stress")
@@ -183,13 +183,10 @@ class Classification:
         """The class of the law with the lowest BIC among laws fitted to the points (``families``: each law's class
         over the probed shear rates, ``fitting.law_family``), its confidence the Schwarz weight of the laws of
         that class, w_j = exp(−BIC_j/2) / Σ_l exp(−BIC_l/2) (``behaviour.flow_laws``)."""
-        best = min(bics.values())
-        weights = {name: math.exp(-0.5 * (bic - best)) for name, bic in bics.items()}
-        total = sum(weights.values())
-        shares = {label: sum(w for name, w in weights.items() if families[name] == label) / total for label in CLASSES}
+        weights = schwarz_weights(bics)
+        shares = {label: sum(w for name, w in weights.items() if families[name] == label) for label in CLASSES}
         label = families[min(bics, key=bics.get)]
-        laws = {"families": dict(families), "weights": {name: w / total for name, w in weights.items()},
-                "class_weights": shares}
+        laws = {"families": dict(families), "weights": weights, "class_weights": shares}
         return replace(self, label=label, confidence=shares[label], laws=laws)
 
     def summary(self) -> dict:
@@ -263,10 +260,9 @@ def joint_yield_test(bics: dict[str, float], yield_shares: dict[str, float] | No
         return None
     shares = yield_shares or {}
     material = [name for name in with_yield if shares.get(name, math.inf) >= min_share]
-    best = min(finite.values())
-    weights = {name: math.exp(-0.5 * (b - best)) for name, b in finite.items()}
+    weights = schwarz_weights(finite)
     best_yield, best_other = min(with_yield, key=with_yield.get), min(others, key=others.get)
-    return JointYieldTest(weight=sum(weights[n] for n in material) / sum(weights.values()),
+    return JointYieldTest(weight=sum(weights[n] for n in material),
                           best_yield=best_yield, best_other=best_other,
                           delta_bic=others[best_other] - with_yield[best_yield],
                           yield_shares=None if yield_shares is None else {n: float(shares[n]) for n in with_yield},

@@ -25,7 +25,7 @@ from .problem import FitProblem, StirProblem, Windows, rig_from_recording, traje
 from .programme import PROGRAMME_SIMULATIONS, ProgrammeFit, programme_viscosities
 from .progress import Progress, fit_simulations
 from .result import Identification, parameter_summary, parameter_uncertainty
-from .selection import CRITERIA, bic, bic_of_rss, rank, select
+from .selection import CRITERIA, bic, bic_of_rss, rank, schwarz_weights, select
 from .settings import FitSettings
 from .uncertainty import (COARSE_FORCE_ERROR, INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, Z95, Uncertainty,
                           checked_model_error, effective_samples, force_error, identifiable_half_width, laplace,
@@ -43,5 +43,6 @@ __all__ = ["COARSE_FORCE_ERROR", "CRITERIA", "DEFAULT_NUISANCES", "FitJob", "Fit
            "identifiable_half_width", "initial_model", "initial_models", "lag_response", "laplace", "law_family",
            "log_viscosity_interval", "mean_readings_on", "mean_stirring_speed", "metzner_otto_constant",
            "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty",
-           "programme_viscosities", "rank", "rig_from_recording", "select", "speed_windows", "theta_of",
-           "trajectory_from_recording", "value_of", "window_event", "window_simulations", "window_viscosity"]
+           "programme_viscosities", "rank", "rig_from_recording", "schwarz_weights", "select", "speed_windows",
+           "theta_of", "trajectory_from_recording", "value_of", "window_event", "window_simulations",
+           "window_viscosity"]

@@ -75,17 +75,24 @@ def bic_margin(bics: dict[str, float]) -> dict | None:
     return {"best": ordered[0], "runner_up": ordered[1], "delta_bic": margin, "evidence": grade}
 
 
+def schwarz_weights(bics: dict[str, float]) -> dict[str, float]:
+    """Each law's probability given the data, equal priors, by Schwarz's approximation of the evidence:
+    w_k = exp(−BIC_k / 2) / Σ_l exp(−BIC_l / 2) [1] over finite ``bics``."""
+    best = min(bics.values())
+    raw = {name: math.exp(-(b - best) / 2.0) for name, b in bics.items()}
+    total = sum(raw.values())
+    return {name: w / total for name, w in raw.items()}
+
+
 def bic_weights(bics: dict[str, float]) -> dict[str, float]:
-    """The laws' probabilities given the recording, equal priors: p_k ∝ exp(−ΔBIC_k / 2) (BIC's approximation of the
-    evidence); a law more than ``RULED_OUT_DELTA_BIC`` above the best, or with no finite BIC, gets 0."""
+    """The laws' probabilities given the recording (``schwarz_weights``) among those within ``RULED_OUT_DELTA_BIC``
+    of the best; a law further above it, or with no finite BIC, gets 0."""
     finite = {name: b for name, b in bics.items() if math.isfinite(b)}
     if not finite:
         return {name: 0.0 for name in bics}
     best = min(finite.values())
-    raw = {name: (math.exp(-(b - best) / 2.0) if name in finite and b - best <= RULED_OUT_DELTA_BIC else 0.0)
-           for name, b in bics.items()}
-    total = sum(raw.values())
-    return {name: w / total for name, w in raw.items()}
+    weights = schwarz_weights({name: b for name, b in finite.items() if b - best <= RULED_OUT_DELTA_BIC})
+    return {name: weights.get(name, 0.0) for name in bics}
 
 
 def averaged_interval(estimates: dict[str, tuple[float, float, float]], weights: dict[str, float],

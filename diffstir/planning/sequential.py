@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fitting import Z95, PointsFit, fit_points, law_family
+from ..fitting import Z95, PointsFit, fit_points, law_family, schwarz_weights
 from ..lab.programme import stirring_programme
 from ..recording import stirring_frequency
 from ..recording.validate import MIN_DURATION
@@ -113,23 +113,16 @@ class NextSegment:
                 "units": {"speed": "m/s", "duration": "s", "ramp_time": "s", "score": "nats"}}
 
 
-def schwarz_weights(fits: dict[str, PointsFit]) -> dict[str, float]:
-    """w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2) [1]."""
-    best = min(fit.bic for fit in fits.values())
-    raw = {name: math.exp(-0.5 * (fit.bic - best)) for name, fit in fits.items()}
-    total = sum(raw.values())
-    return {name: w / total for name, w in raw.items()}
-
-
-def family_weights(so_far: StirSoFar, fits: dict[str, PointsFit]) -> tuple[str | None, dict[str, float]]:
-    """The family of the best law over the points' shear rates and each family's Schwarz weight; no family, and no
-    weights, before the points span two shear rates (one point: every law passes through it)."""
+def family_weights(so_far: StirSoFar, fits: dict[str, PointsFit], weights: dict[str, float]
+                   ) -> tuple[str | None, dict[str, float]]:
+    """The family of the best law over the points' shear rates and each family's share of the laws' Schwarz
+    ``weights``; no family, and no shares, before the points span two shear rates (one point: every law passes
+    through it)."""
     rates = np.array(so_far.shear_rates)
     band = (float(rates.min()), float(rates.max()))
     if not band[1] > band[0]:
         return None, {}
     middle = float(np.exp(np.mean(np.log(rates))))
-    weights = schwarz_weights(fits)
     families = {name: law_family(fit.model, fit.theta, fit.uncertainty, band, middle)["class"]
                 for name, fit in fits.items()}
     shares: dict[str, float] = {}
@@ -145,12 +138,20 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
     longer, its ``shortest_stir``, within the budget left, on ``calibration``'s rig against ``prior``'s laws."""
     prior, settings = prior or Prior(), settings or PlanSettings()
     fits = so_far.fits(prior.laws)
-    family, shares = family_weights(so_far, fits)
+    weights = schwarz_weights({name: fit.bic for name, fit in fits.items()})
+    family, shares = family_weights(so_far, fits, weights)
     confidence = shares.get(family, 0.0)
     segment = settings.budget / settings.max_segments
     left = settings.budget - so_far.elapsed
     if confidence >= DECIDED:
         return NextSegment(True, family, confidence, None, segment, 0.0, None, {})
+    own = dataclasses.replace(calibration, shear_rate_factor=so_far.rate_per_speed * calibration.rod_radius)
+    reference_rate = float(np.exp(np.mean(np.log(so_far.shear_rates))))
+    sigma = np.array(so_far.log_std)
+    precisions = {}  # Λ_a: the prior's box precision plus the points' information at law a's fit
+    for name, fit in fits.items():
+        jacobian = fit.model.viscosity(np.array(so_far.shear_rates), fit.theta)[1] / sigma[:, None]
+        precisions[name] = np.diag(prior.precision(name, reference_rate)) + jacobian.T @ jacobian
     scores, durations = {}, {}
     for speed in settings.levels():
         ramp = settings.arm.ramp_time(speed, settings.min_ramp)
@@ -160,7 +161,7 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
         samples = int((duration - ramp - settings.settle_time) * settings.sample_rate)
         if samples >= settings.min_window * settings.sample_rate:
             durations[speed] = duration
-            scores[speed] = float(_score(so_far, fits, Window(speed, samples), calibration, prior, settings))
+            scores[speed] = _score(so_far, fits, weights, precisions, Window(speed, samples), own, settings)
     if not scores:  # the budget left holds no valid stir with its ramp, settling and a window
         return NextSegment(False, family, confidence, None, segment, 0.0, None, {})
     speed = max(scores, key=scores.get)
@@ -183,26 +184,22 @@ def shortest_stir(speed: float, least: float, ramp_time: float, settings: PlanSe
     return math.inf
 
 
-def _score(so_far: StirSoFar, fits: dict[str, PointsFit], window: Window, calibration: Calibration, prior: Prior,
-           settings: PlanSettings) -> float:
-    """The window's expected information gain plus evidence [nats], averaged over the laws by their weights; a law
-    under which the window reads no viscosity (its drag at the noise or inertial floor) gains nothing from it and
-    keeps the evidence of the points so far."""
-    own = dataclasses.replace(calibration, shear_rate_factor=so_far.rate_per_speed * calibration.rod_radius)
-    reference_rate = float(np.exp(np.mean(np.log(so_far.shear_rates))))
-    weights = schwarz_weights(fits)
-    sigma = np.array(so_far.log_std)
+def _score(so_far: StirSoFar, fits: dict[str, PointsFit], weights: dict[str, float],
+           precisions: dict[str, np.ndarray], window: Window, calibration: Calibration, settings: PlanSettings
+           ) -> float:
+    """The window's expected information gain plus evidence [nats], averaged over the laws by their ``weights``,
+    each law's gain against its precision after the points (``precisions``); a law under which the window reads no
+    viscosity (its drag at the noise or inertial floor) gains nothing from it and keeps the evidence of the points
+    so far."""
     score = 0.0
     for name, fit in fits.items():
-        (point,) = window_points([window], fit.model, own, settings.errors, fit.theta)
+        (point,) = window_points([window], fit.model, calibration, settings.errors, fit.theta)
         gain, refits = 0.0, fits
         if math.isfinite(point.viscosity_error):
-            jacobian = fit.model.viscosity(np.array(so_far.shear_rates), fit.theta)[1] / sigma[:, None]
-            precision = np.diag(prior.precision(name, reference_rate)) + jacobian.T @ jacobian
             new = np.outer(point.gradient, point.gradient) / point.log_error**2
+            precision = precisions[name]
             gain = 0.5 * (np.linalg.slogdet(precision + new)[1] - np.linalg.slogdet(precision)[1]) / fit.model.size
             refits = so_far.fits(tuple(fits), (point.shear_rate, point.viscosity, point.viscosity_error))
         rivals = [min(refits[b].bic - refits[name].bic, DECISIVE_DELTA_BIC) / 2.0 for b in refits if b != name]
         score += weights[name] * (gain + (float(np.mean(rivals)) if rivals else 0.0))
-    return score
-
+    return float(score)
