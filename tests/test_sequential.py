@@ -1,12 +1,13 @@
 """The sequential mode (``planning.sequential``): the next segment from the stir so far, against closed forms."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 from test_planning import viscous_calibration
 
-from diffstir.fitting import FitModel
+from diffstir.fitting import FitModel, law_family, schwarz_weights
 from diffstir.planning import PlanSettings, Prior, Window, window_points
 from diffstir.planning.sequential import DECIDED, StirSoFar, next_segment, shortest_stir
 
@@ -60,19 +61,37 @@ def test_an_undecided_stir_asks_for_a_segment_while_the_budget_holds_one():
     assert not spent.decided and spent.speed is None and not spent.scores
 
 
-def test_a_report_gives_its_resolved_points_with_their_errors_and_its_recordings_length():
+def test_a_report_gives_its_classified_points_with_their_errors_its_laws_and_its_recordings_length():
     z = 1.959963984540054
-    summary = {"points": [
+    summary = {"joint_fit": {"fitted_to": "points", "laws": {"newtonian": {}, "power_law": {}}}, "points": [
         {"window": "a@0.19-1s", "end": 1.0, "speed": 0.01, "shear_rate": 0.9, "viscosity": 1.0,
-         "viscosity_ci95": [0.0, math.inf]},
+         "viscosity_ci95": [0.0, math.inf], "classified": False},
         {"window": "a@1.19-2s", "end": 2.0, "speed": 0.04, "shear_rate": 3.6, "viscosity": 0.5,
-         "viscosity_ci95": [0.5 * math.exp(-0.1 * z), 0.5 * math.exp(0.1 * z)]},
+         "viscosity_ci95": [0.5 * math.exp(-0.1 * z), 0.5 * math.exp(0.1 * z)], "classified": True},
         {"window": "b@0.39-2s", "end": 2.0, "speed": 0.16, "shear_rate": 14.4, "viscosity": 0.3,
-         "viscosity_ci95": [0.3 * math.exp(-0.2 * z), 0.3 * math.exp(0.2 * z)]}]}
+         "viscosity_ci95": [0.3 * math.exp(-0.2 * z), 0.3 * math.exp(0.2 * z)], "classified": True}]}
     so_far = StirSoFar.from_report(summary)
     assert so_far.speeds == (0.04, 0.16) and so_far.log_std == (pytest.approx(0.1), pytest.approx(0.2))
     assert so_far.rate_per_speed == pytest.approx(90.0)  # k_s / a [1/m]
     assert so_far.elapsed == 4.0  # two recordings of 2 s, the unresolved window's counted
+    assert so_far.laws == ("newtonian", "power_law")
+
+
+def test_the_stir_is_judged_by_the_laws_its_analysis_fitted():
+    # two points a factor 4 apart, n = 0.9 with 10 % errors: the flow-curve analysis's laws (the power law among
+    # them) give the family and confidence its report states, the Schwarz weight of the best law's family
+    laws = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
+    points = dataclasses.replace(stir_of(FitModel.named("power_law", k=0.3, n=0.9), (0.02, 0.08), log_std=0.1),
+                                 laws=laws)
+    step = next_segment(points, CALIBRATION, settings=SETTINGS)
+    fits = points.fits(laws)
+    band = (min(points.shear_rates), max(points.shear_rates))
+    families = {name: law_family(fit.model, fit.theta, fit.uncertainty, band, math.sqrt(band[0] * band[1]))["class"]
+                for name, fit in fits.items()}
+    weights = schwarz_weights({name: fit.bic for name, fit in fits.items()})
+    best = min(fits, key=lambda name: fits[name].bic)
+    assert step.family == families[best]
+    assert step.confidence == pytest.approx(sum(w for name, w in weights.items() if families[name] == step.family))
 
 
 def test_the_next_stir_starts_from_rest():

@@ -94,7 +94,7 @@ def stir_so_far(path: Path) -> StirSoFar:
     except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise ConfigError(f"{path}: points: unreadable ({type(error).__name__}: {error}); {expected}") from None
     if not so_far.speeds:
-        raise ConfigError(f"{path}: points: no window with a finite interval; the stir so far resolved no viscosity")
+        raise ConfigError(f"{path}: points: none classified; the stir so far resolved no viscosity")
     return so_far
 
 

@@ -1,8 +1,9 @@
 """The next segment of a stir, chosen from what the stir so far has told (the sequential mode, docs/planning.md).
 
 The stir so far is its window points (γ̇_k [1/s], η_k [Pa·s], σ_k of ln η_k), as the flow-curve analysis reads
-them (``diffstir-fit experiment=flow_curve``, report.json's ``points``). Each candidate law a is fitted to them
-(``fitting.fit_points``) and weighted by its Schwarz weight w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2). A next
+them (``diffstir-fit experiment=flow_curve``, report.json's ``points``). Each law the analysis fitted to them
+(``behaviour.joint_models``; the prior's laws where it fitted none) is fitted again (``fitting.fit_points``), so
+the stir's family and confidence are the report's, and weighted by its Schwarz weight w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2). A next
 segment at speed U adds one steady window, whose point the window model predicts for each law at its fit
 (``information.window_points``, at the stir's own k_s). The segment is scored as the plan scores a programme, in
 nats, each term averaged over the laws by w_a:
@@ -47,29 +48,32 @@ DECIDED = 0.99
 @dataclass(frozen=True)
 class StirSoFar:
     """A stir's window points: ``speeds`` [m/s], ``shear_rates`` [1/s], ``viscosity`` [Pa·s] and ``log_std``, the
-    standard error of each ln η [1]; ``elapsed`` [s], the length of its recordings together."""
+    standard error of each ln η [1]; ``elapsed`` [s], the length of its recordings together; ``laws``, the laws
+    the flow-curve analysis fitted to the points (None: the prior's)."""
 
     speeds: tuple[float, ...]
     shear_rates: tuple[float, ...]
     viscosity: tuple[float, ...]
     log_std: tuple[float, ...]
     elapsed: float
+    laws: tuple[str, ...] | None = None
 
     @classmethod
     def from_report(cls, summary: dict) -> "StirSoFar":
-        """The resolved points of a flow-curve report (``Behaviour.summary()``, report.json), the standard error of
-        ln η from each 95 % interval, ln(hi / lo) / (2 Z95); the stir's length, the sum over its recordings of the
-        last window's end (a window is labelled ``<recording>@<start>-<end>s``)."""
+        """The points a flow-curve report classified (``Behaviour.summary()``, report.json), the standard error of
+        ln η from each 95 % interval, ln(hi / lo) / (2 Z95), and the laws its joint fit holds; the stir's length,
+        the sum over its recordings of the last window's end (a window is labelled ``<recording>@<start>-<end>s``).
+        """
         ends: dict[str, float] = {}
         for p in summary["points"]:
             recording = p["window"].rsplit("@", 1)[0]
             ends[recording] = max(ends.get(recording, 0.0), float(p["end"]))
-        points = [p for p in summary["points"] if p["viscosity_ci95"][1] not in (None, math.inf)
-                  and p["viscosity_ci95"][0] and p["viscosity_ci95"][1] > p["viscosity_ci95"][0]]
+        points = [p for p in summary["points"] if p["classified"]]
+        laws = tuple((summary.get("joint_fit") or {}).get("laws", {})) or None
         return cls(tuple(p["speed"] for p in points), tuple(p["shear_rate"] for p in points),
                    tuple(p["viscosity"] for p in points),
                    tuple(math.log(p["viscosity_ci95"][1] / p["viscosity_ci95"][0]) / (2 * Z95) for p in points),
-                   sum(ends.values()))
+                   sum(ends.values()), laws)
 
     @property
     def rate_per_speed(self) -> float:
@@ -135,9 +139,10 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
                  settings: PlanSettings | None = None) -> NextSegment:
     """Whether ``so_far`` is decided and, if not, its best next stir (module docstring): a speed of ``settings``'
     levels from rest for the plan's segment length (``budget`` / ``max_segments``) or, where a recording needs
-    longer, its ``shortest_stir``, within the budget left, on ``calibration``'s rig against ``prior``'s laws."""
+    longer, its ``shortest_stir``, within the budget left, on ``calibration``'s rig; the stir's laws (``prior``'s
+    where it names none) scored against ``prior``'s box."""
     prior, settings = prior or Prior(), settings or PlanSettings()
-    fits = so_far.fits(prior.laws)
+    fits = so_far.fits(so_far.laws or prior.laws)
     weights = schwarz_weights({name: fit.bic for name, fit in fits.items()})
     family, shares = family_weights(so_far, fits, weights)
     confidence = shares.get(family, 0.0)

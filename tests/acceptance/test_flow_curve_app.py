@@ -53,6 +53,8 @@ def test_a_shortened_planned_recording_is_shear_thinning(tmp_path):
     ok(run("diffstir-plan", "after=flow/report.json", "out=next", cwd=tmp_path, timeout=600))
     step = json.loads((tmp_path / "next" / "next.json").read_text())
     assert step["decided"] and step["family"] == "shear_thinning" and step["next"] is None
+    behaviour = json.loads((out / "report.json").read_text())["behaviour"]  # judged by the report's own laws
+    assert step["family"] == behaviour["class"] and step["confidence"] == pytest.approx(behaviour["confidence"])
     assert step["elapsed"] == pytest.approx(3.2, abs=0.02)  # the four 0.8 s segments
     assert not (tmp_path / "next" / "stir_path.csv").exists()
 

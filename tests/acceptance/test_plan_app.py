@@ -10,6 +10,7 @@ import pytest
 import yaml
 from acceptance_commands import ROOT, ok, refused, run
 
+from diffstir.behaviour import JOINT_MODELS
 from diffstir.hardware import load_trajectory
 from diffstir.lab import stirring_programme
 
@@ -49,10 +50,10 @@ def test_a_bad_prior_is_refused_in_one_line_before_any_simulation(tmp_path):
 
 def flow_curve_report(points: list[tuple[float, float, float, float]]) -> dict:
     """A flow-curve report.json's fields the sequential mode reads, one recording of 2 s segments: (speed [m/s],
-    γ̇ [1/s], η [Pa·s], σ of ln η)."""
-    return {"joint_fit": {"fitted_to": "points"},
+    γ̇ [1/s], η [Pa·s], σ of ln η), and the laws of the analysis's default ``behaviour.joint_models``."""
+    return {"joint_fit": {"fitted_to": "points", "laws": {name: {} for name in JOINT_MODELS}},
             "points": [{"window": f"stir@{2 * k + 0.4:g}-{2 * k + 2:g}s", "end": 2.0 * k + 2, "speed": u,
-                        "shear_rate": g, "viscosity": eta,
+                        "shear_rate": g, "viscosity": eta, "classified": True,
                         "viscosity_ci95": [eta * math.exp(-1.96 * s), eta * math.exp(1.96 * s)]}
                        for k, (u, g, eta, s) in enumerate(points)]}
 
