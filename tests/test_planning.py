@@ -10,6 +10,7 @@ from hydra import compose, initialize_config_dir
 
 from diffstir.apps import CONF_DIR
 from diffstir.apps.plan import plan_inputs
+from diffstir.behaviour import JOINT_MODELS
 from diffstir.fitting import SHEAR_RATE_PROBES, Z95, FitModel, ViscosityLadder
 from diffstir.fitting.initial import mean_readings
 from diffstir.mpm import FINE_STAGE, SimConfig
@@ -221,6 +222,7 @@ def test_the_command_defaults_are_the_python_defaults_and_their_calibration_is_s
         cfg = compose("plan")
     rig, config, prior, settings = plan_inputs(cfg)
     assert (prior, settings, config) == (Prior(), PlanSettings(), FINE_STAGE)
+    assert prior.laws == tuple(JOINT_MODELS)  # the laws the planned stir's flow-curve analysis selects among
     events = []
     calibration = rig_calibration(rig, prior, settings, config, cache_dir=tmp_path, report=events.append)
     assert events == [] and not (tmp_path / "plan").exists()

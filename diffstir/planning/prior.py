@@ -27,8 +27,9 @@ from ..errors import ConfigError, check_choices, is_number, is_whole
 from ..fitting import FitModel
 from ..rheology import LAWS, within_bounds
 
-#: The laws a plan tells apart by default: the identification's (``identification.DEFAULT_MODELS``).
-PLAN_LAWS = ("newtonian", "carreau", "cross", "herschel_bulkley")
+#: The laws a plan tells apart by default: those the flow-curve analysis of the planned stir selects among
+#: (``behaviour.JOINT_MODELS``), so the plan weighs the evidence its analysis will weigh.
+PLAN_LAWS = ("newtonian", "power_law", "carreau", "cross", "herschel_bulkley")
 #: Draws per law that set the prior's precision P (the spread of θ over the prior's box).
 PRECISION_DRAWS = 64
 #: Shape coordinates each law draws, after ln η_ref.
