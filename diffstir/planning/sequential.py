@@ -3,10 +3,10 @@
 The stir so far is its window points (γ̇_k [1/s], η_k [Pa·s], σ_k of ln η_k), as the flow-curve analysis reads
 them (``diffstir-fit experiment=flow_curve``, report.json's ``points``). Each law the analysis fitted to them
 (``behaviour.joint_models``; the prior's laws where it fitted none) is fitted again (``fitting.fit_points``), so
-the stir's family and confidence are the report's, and weighted by its Schwarz weight w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2). A next
-segment at speed U adds one steady window, whose point the window model predicts for each law at its fit
-(``information.window_points``, at the stir's own k_s). The segment is scored as the plan scores a programme, in
-nats, each term averaged over the laws by w_a:
+the stir's family and confidence are the report's, and weighted by its Schwarz weight
+w_a = exp(−BIC_a / 2) / Σ_l exp(−BIC_l / 2). A next segment at speed U adds one steady window, whose point the
+window model predicts for each law at its fit (``information.window_points``, at the stir's own k_s). The segment
+is scored as the plan scores a programme, in nats, each term averaged over the laws by w_a:
 
 - the information gain about law a's parameters, ½ log det(𝟙 + Λ_a^(−½) I_U Λ_a^(−½)) / k_a, with Λ_a = P_a +
   Jᵀ W J the precision after the stir so far (the prior's box P_a and the points' information at the fit) and I_U
