@@ -15,10 +15,13 @@ analysis against a finer run of its own kind of simulator, not against a real cu
   (``fitting.law_family``).
 
 The truth's family is the one its law shows over the plan's effective shear rates (``identification_benchmark
-.true_class``). A yield-stress truth on the 2 mm grid takes hours (its capped viscosity), and each planned analysis
+.true_class``). ``--refit`` fits the laws again to each planned case's stored points, the analysis's last step
+(``behaviour.flow_laws.laws_of_points``, no simulation), so a change in how the laws are fitted is measured on the
+same points. A yield-stress truth on the 2 mm grid takes hours (its capped viscosity), and each planned analysis
 about 4-10 minutes on 2 cores: the full table is a study of many hours, resumed by rerunning the same command.
 
     python scripts/plan_benchmark.py --out FILE.json [--fluids carreau_example ...] [--seeds 3] [--skip-single]
+    python scripts/plan_benchmark.py --out FILE.json --refit
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ import yaml
 from identification_benchmark import CONF, finished, fluid_preset, save, sensor_preset, sim, true_class
 
 from diffstir.behaviour import BehaviourSettings, characterise
-from diffstir.fitting import FitSettings
+from diffstir.behaviour.flow_laws import laws_of_points
+from diffstir.fitting import Z95, FitSettings
 from diffstir.identification import identify
 from diffstir.lab import Fluid, make_fluid_law, stirring_programme
 from diffstir.lab.synth import read_truth, simulate_truth
@@ -137,9 +141,17 @@ def main() -> None:
     parser.add_argument("--skip-single", action="store_true", help="the planned programme only")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, required=True, help="JSON of the cases; a rerun skips those in it")
+    parser.add_argument("--refit", action="store_true", help="fit the laws again to the planned cases' points")
     args = parser.parse_args()
     torch.set_num_threads(1)
     rows = finished(args.out)
+    if args.refit:
+        for row in rows:
+            if row["programme"] == "planned":
+                refit(row)
+        save(args.out, rows)
+        print(table(rows))
+        return
     done = {(r["fluid"], r["programme"], r["seed"]) for r in rows}
     truth_config, config, sensor = sim("lab/sim/truth2d.yaml"), sim("sim/slice2d.yaml"), sensor_preset("paper")
     planned_spec, _ = programme("paper_plan")
@@ -177,6 +189,17 @@ def main() -> None:
                 print(f"{fluid_name} {kind} seed {seed}: {case['class']} (truth {family}), {case['seconds']:.0f} s",
                       flush=True)
     print(table(rows))
+
+
+def refit(row: dict) -> None:
+    """The planned case ``row``'s laws fitted again to its points, those with a finite interval (the analysis's
+    classified points), with each point's σ of ln η from its interval, and its coverage of the truth's law."""
+    points = [p for p in row["points"] if p["viscosity_ci95"][0] and math.isfinite(p["viscosity_ci95"][1])]
+    sigma = [math.log(p["viscosity_ci95"][1] / p["viscosity_ci95"][0]) / (2 * Z95) for p in points]
+    laws = laws_of_points([p["shear_rate"] for p in points], [p["viscosity"] for p in points], sigma,
+                          list(BehaviourSettings().joint_models)).summary()
+    row.update(laws=laws["laws"], selected=laws["selected"], coverage=coverage(row["truth_law"], laws["laws"]),
+               refit=datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"))
 
 
 def table(rows: list[dict]) -> str:

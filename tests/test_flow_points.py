@@ -1,12 +1,13 @@
 """Laws fitted to apparent-viscosity points (``fitting.flow_points``): weighted least squares in ln η, its covariance
-with the Birge ratio, BIC with known errors, and open intervals where the points leave a parameter undetermined."""
+with the Birge ratio, BIC with known errors, open intervals where the points leave a parameter undetermined, and
+the profile-likelihood intervals."""
 
 import math
 
 import numpy as np
 import pytest
 
-from diffstir.fitting import Z95, FitModel, fit_points
+from diffstir.fitting import Z95, FitModel, fit_points, profiled
 
 RATES = np.array([0.9, 1.8, 3.6, 14.4])  # 1/s: the default plan's effective shear rates (docs/planning.md)
 
@@ -56,6 +57,38 @@ def test_four_points_leave_a_four_parameter_law_partly_open_and_rank_it_by_bic()
     # BIC = χ² + k ln S: the Newtonian law cannot follow a factor 2 of thinning, 0.04 in ln η per point
     assert fits["newtonian"].bic - fits["carreau"].bic > 10
     assert fits["carreau"].bic == pytest.approx(fits["carreau"].chi2 + 4 * math.log(4))
+
+
+@pytest.mark.parametrize("name,eta", [
+    ("newtonian", np.array([1.0, 1.1, 0.95, 1.02])),             # scattered beyond its errors: B > 1
+    ("power_law", np.array([2.1, 1.4, 1.15, 0.62]))])
+def test_the_profile_interval_of_a_law_linear_in_ln_eta_is_its_covariance_interval(name, eta):
+    # ln η = θ (Newtonian) and ln η = ln k + (n − 1) ln γ̇ (power law) are linear in θ: χ² is quadratic, and its
+    # profile rises by Z95² B² exactly at θ_j ± Z95 σ_j
+    sigma = np.full(4, 0.03)
+    fit = fit_points(name, RATES, eta, sigma)
+    profile = profiled(fit, RATES, eta, sigma)
+    for parameter in fit.model.names:
+        assert profile.uncertainty.ci95[parameter] == pytest.approx(fit.uncertainty.ci95[parameter], rel=1e-5)
+        assert profile.uncertainty.identifiable[parameter] == fit.uncertainty.identifiable[parameter]
+    assert profile.chi2 == fit.chi2 and np.array_equal(profile.uncertainty.covariance, fit.uncertainty.covariance)
+
+
+def test_the_profile_holds_a_cross_fluid_where_the_curvature_of_a_law_through_its_points_misleads():
+    # four windows of a Cross fluid (η0 = 2 Pa·s, η∞ = 0.02 Pa·s, λ = 1 s, n = 0.7) as the plan's stir read them on
+    # the benchmark's 2-D truth (seed 2): the Cross law passes through the four points, and the curvature there
+    # gives η∞ [0.13, 0.49] Pa·s and λ [0.22, 0.43] s, which miss the truth; the profile, along which the other
+    # parameters follow, holds all four and names none identified
+    rates = np.array([0.901, 1.802, 3.603, 14.412])
+    eta = np.array([0.9721, 0.8698, 0.6056, 0.2917])
+    sigma = np.array([0.0614, 0.0698, 0.0542, 0.0709])
+    truth = {"eta0": 2.0, "eta_inf": 0.02, "lam": 1.0, "n": 0.7}
+    fit = fit_points("cross", rates, eta, sigma)
+    profile = profiled(fit, rates, eta, sigma)
+    for name, value in truth.items():
+        lo, hi = profile.uncertainty.ci95[name]
+        assert lo <= value <= hi and lo <= fit.model.params_si()[name] <= hi
+        assert not profile.uncertainty.identifiable[name]
 
 
 @pytest.mark.parametrize("rates,eta,sigma", [

@@ -3,8 +3,8 @@
 Each recording's windows are read by Newtonian simulations of its whole programme
 (``fitting.programme_viscosities``): the points η_k at γ̇_k = k_s U_k / a are the windows' Newtonian-equivalent
 viscosities. The laws are then fitted to the points, as a rheometer's flow curve is (``fitting.fit_points``:
-weighted least squares in ln η with each point's error from noise and simulator together, BIC = χ² + k ln S), with
-no further simulation. This is the planner's model of a programme's windows (``planning.information``, whose
+weighted least squares in ln η with each point's error from noise and simulator together, BIC = χ² + k ln S;
+each parameter's interval from its profile likelihood, ``fitting.profiled``), with no further simulation. This is the planner's model of a programme's windows (``planning.information``, whose
 calibration stirs each speed from rest). It costs at most ``fitting.PROGRAMME_SIMULATIONS`` simulations per
 recording, where the simulated analysis fits every window and every law through the simulator.
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fitting import PointsFit, ViscosityPoint, fit_points, law_family, parameter_summary, rank
+from ..fitting import PointsFit, ViscosityPoint, fit_points, law_family, parameter_summary, profiled, rank
 
 
 @dataclass
@@ -55,7 +55,12 @@ class FlowCurveLaws:
 
 def flow_curve_laws(points: list[ViscosityPoint], shear_rates: np.ndarray, names: list[str]) -> FlowCurveLaws:
     """Laws ``names`` fitted to ``points`` at ``shear_rates`` [1/s] with each point's total error of ln η."""
-    viscosity = [p.viscosity for p in points]
-    errors = [p.total_log_std for p in points]
-    fits = {name: fit_points(name, shear_rates, viscosity, errors) for name in names}
+    return laws_of_points(shear_rates, [p.viscosity for p in points], [p.total_log_std for p in points], names)
+
+
+def laws_of_points(shear_rates, viscosity, log_std, names: list[str]) -> FlowCurveLaws:
+    """Laws ``names`` fitted to points (γ̇_k [1/s], η_k [Pa·s], σ_k of ln η_k [1]), each parameter's 95 % interval
+    from its profile likelihood (``fitting.profiled``)."""
+    fits = {name: profiled(fit_points(name, shear_rates, viscosity, log_std), shear_rates, viscosity, log_std)
+            for name in names}
     return FlowCurveLaws(fits, rank({name: fit.bic for name, fit in fits.items()})[0])

@@ -11,7 +11,7 @@ mixing analyses repeat over windows. See docs/identification.md.
 
 from .apparent import ViscosityPoint, WindowsJob, window_event, window_simulations, window_viscosity
 from .family import law_family
-from .flow_points import PointsFit, fit_points
+from .flow_points import PointsFit, fit_points, profiled
 from .initial import (LADDER_VISCOSITIES, PROBE_INDEX_STEP, SHEAR_RATE_PROBES, YIELD_SHARES, ViscosityLadder,
                       characteristic_shear_rate, effective_shear_rate, initial_model, initial_models,
                       mean_stirring_speed, metzner_otto_constant, newtonian_embedding)
@@ -42,7 +42,7 @@ __all__ = ["COARSE_FORCE_ERROR", "CRITERIA", "DEFAULT_NUISANCES", "FitJob", "Fit
            "effective_samples", "effective_shear_rate", "fit_model", "fit_points", "fit_simulations", "force_error",
            "identifiable_half_width", "initial_model", "initial_models", "lag_response", "laplace", "law_family",
            "log_viscosity_interval", "mean_readings_on", "mean_stirring_speed", "metzner_otto_constant",
-           "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty",
+           "newtonian_embedding", "noise_scale", "parameter_summary", "parameter_uncertainty", "profiled",
            "programme_viscosities", "rank", "rig_from_recording", "schwarz_weights", "select", "speed_windows",
            "theta_of", "trajectory_from_recording", "value_of", "window_event", "window_simulations",
            "window_viscosity"]

@@ -12,22 +12,32 @@ points than parameters, a bend outside the points' range) gets an infinite varia
 interval (``uncertainty.uncertainty_of``). Laws are compared by BIC = χ² + k ln S, the Gaussian likelihood with
 known errors (−2 ln L = χ² up to a constant common to every law); a difference above 10 is very strong evidence
 (``selection.EVIDENCE``).
+
+The covariance's intervals θ_j ± 1.96 σ_j assume χ² quadratic in θ. A law with as many parameters as points
+(Carreau or Cross on four windows) is far from that: it can pass through every point, and the curvature at its
+fit then says nothing of how far a parameter can move while the others follow. ``profiled`` gives each parameter
+the profile-likelihood interval instead (Venzon and Moolgavkar 1988; Raue et al. 2009): the θ_j at which
+χ²_p(θ_j) = min over the other parameters of χ²(θ) rises Z95² B² above its minimum, B² the Birge ratio, searched
+outward on each side; a side on which χ²_p stays below that up to the law's bound is open. For a law linear in θ
+(the power law in ln η) it is the covariance's interval exactly.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from .initial import initial_models, newtonian_embedding
 from .models import FitModel
-from .uncertainty import Uncertainty, uncertainty_of
+from .uncertainty import Z95, Uncertainty, identifiable_half_width, uncertainty_of
 
 #: Relative singular value below which a direction of θ counts as unseen by the points.
 UNSEEN = 1e-8
+#: Bisections of a profile interval's end once bracketed: its θ to 2⁻¹⁶ of the bracket.
+PROFILE_BISECTIONS = 16
 
 
 @dataclass(frozen=True)
@@ -75,16 +85,9 @@ def fit_points(name: str, shear_rate, viscosity, log_std) -> PointsFit:
     if not (finite and np.all(rates > 0) and np.all(eta > 0) and np.all(sigma > 0)):
         raise ValueError("fit_points: expected positive shear rates [1/s], positive viscosities [Pa s] and finite "
                          "positive errors of ln η")
-    target = np.log(eta)
     starts = point_starts(name, rates, eta)
     model = starts[0]
-
-    def residuals(theta: np.ndarray) -> np.ndarray:  # a law can underflow to η = 0 at a trial θ: a huge residual
-        return (target - np.log(np.maximum(model.viscosity_values(rates, theta), np.finfo(float).tiny))) / sigma
-
-    def jacobian(theta: np.ndarray) -> np.ndarray:
-        return -model.viscosity(rates, theta)[1] / sigma[:, None]
-
+    residuals, jacobian = _objective(model, rates, eta, sigma)
     best = None
     for start in starts:
         fit = least_squares(residuals, np.clip(start.theta(), model.lower, model.upper), jac=jacobian,
@@ -105,3 +108,87 @@ def fit_points(name: str, shear_rate, viscosity, log_std) -> PointsFit:
     covariance[:, blind] = np.inf
     uncertainty = uncertainty_of(model, theta, covariance, float(s), math.sqrt(birge))
     return PointsFit(model, theta, chi2, chi2 + k * math.log(s), uncertainty)
+
+
+def _objective(model: FitModel, rates: np.ndarray, eta: np.ndarray, sigma: np.ndarray):
+    """The weighted residuals (ln η_k − ln η(γ̇_k; θ)) / σ_k and their Jacobian in θ."""
+    target = np.log(eta)
+
+    def residuals(theta: np.ndarray) -> np.ndarray:  # a law can underflow to η = 0 at a trial θ: a huge residual
+        return (target - np.log(np.maximum(model.viscosity_values(rates, theta), np.finfo(float).tiny))) / sigma
+
+    def jacobian(theta: np.ndarray) -> np.ndarray:
+        return -model.viscosity(rates, theta)[1] / sigma[:, None]
+
+    return residuals, jacobian
+
+
+def profiled(fit: PointsFit, shear_rate, viscosity, log_std) -> PointsFit:
+    """``fit`` (of the points γ̇_k [1/s], η_k [Pa·s], σ_k of ln η_k) with each parameter's 95 % interval from its
+    profile likelihood (module docstring), identifiable when both ends are within the covariance's rule
+    (``uncertainty.identifiable_half_width``) and it is not on a bound; the covariance is kept."""
+    rates, eta, sigma = (np.asarray(v, dtype=np.float64) for v in (shear_rate, viscosity, log_std))
+    model = fit.model
+    residuals, jacobian = _objective(model, rates, eta, sigma)
+    k, s = model.size, rates.size
+    rise = Z95**2 * (max(1.0, fit.chi2 / (s - k)) if s > k else 1.0)
+    ci95, identifiable = {}, {}
+    for j, name in enumerate(model.names):
+        ends = [_profile_end(residuals, jacobian, model, fit.theta, fit.chi2 + rise, j, side) for side in (-1, 1)]
+        half = max(abs(end - fit.theta[j]) for end in ends)
+        low, high = (float(model.si_of_theta(np.full(k, end))[j]) for end in ends)
+        ci95[name] = (low, high)
+        identifiable[name] = bool(half <= identifiable_half_width(model.scales[j])
+                                  and not fit.uncertainty.at_bound[name])
+    return replace(fit, uncertainty=replace(fit.uncertainty, ci95=ci95, identifiable=identifiable))
+
+
+def _profile_end(residuals, jacobian, model: FitModel, theta: np.ndarray, level: float, j: int, side: int
+                 ) -> float:
+    """The θ_j on ``side`` (−1, +1) of ``theta`` at which the profile χ² reaches ``level``: steps doubling from
+    0.05 in θ until it does, then bisection; ∓inf (an open end) where it stays below up to the law's bound."""
+    bound = model.lower[j] if side < 0 else model.upper[j]
+    inner, start, step = float(theta[j]), np.delete(theta, j), 0.05
+    while True:
+        outer = float(np.clip(theta[j] + side * step, min(bound, theta[j]), max(bound, theta[j])))
+        chi2, rest = _profile(residuals, jacobian, model, theta, j, outer, start)
+        if chi2 >= level:
+            break
+        if outer == bound:
+            return -math.inf if side < 0 else math.inf
+        inner, start, step = outer, rest, 2.0 * step
+    for _ in range(PROFILE_BISECTIONS):
+        middle = 0.5 * (inner + outer)
+        chi2, rest = _profile(residuals, jacobian, model, theta, j, middle, start)
+        if chi2 >= level:
+            outer = middle
+        else:
+            inner, start = middle, rest
+    return 0.5 * (inner + outer)
+
+
+def _profile(residuals, jacobian, model: FitModel, theta: np.ndarray, j: int, value: float, start: np.ndarray
+             ) -> tuple[float, np.ndarray]:
+    """min over the parameters other than j of χ² with θ_j = ``value``, from ``start`` and from ``theta``'s; the
+    minimum and the other parameters there."""
+    others = [i for i in range(model.size) if i != j]
+    full = theta.copy()
+    full[j] = value
+    if not others:
+        return float(np.sum(residuals(full) ** 2)), start
+
+    def sub_residuals(rest: np.ndarray) -> np.ndarray:
+        full[others] = rest
+        return residuals(full)
+
+    def sub_jacobian(rest: np.ndarray) -> np.ndarray:
+        full[others] = rest
+        return jacobian(full)[:, others]
+
+    best = None
+    for guess in (start, theta[others]):
+        result = least_squares(sub_residuals, np.clip(guess, model.lower[others], model.upper[others]),
+                               jac=sub_jacobian, bounds=(model.lower[others], model.upper[others]), method="trf")
+        if best is None or result.cost < best.cost:
+            best = result
+    return 2.0 * float(best.cost), best.x
