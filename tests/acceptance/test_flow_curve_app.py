@@ -31,7 +31,7 @@ def truth_slope(name: str, shear_rates: list[float]) -> float:
 def check_report(report: dict, name: str) -> None:
     """One point per planned speed, the laws fitted to them, and the class of the Carreau truth (n = 0.6,
     λ = 0.5 s) over the plan's 0.9-14 1/s, where its viscosity halves: shear-thinning, with the points' slope
-    interval holding the truth's chord."""
+    interval holding the truth's chord, and each identified parameter of the truth's law holding its value."""
     assert len(report["points"]) == 4
     assert report["joint_fit"]["fitted_to"] == "points"
     assert report["programmes"][0]["simulations"] <= PROGRAMME_SIMULATIONS
@@ -39,6 +39,11 @@ def check_report(report: dict, name: str) -> None:
     assert b["class"] == "shear_thinning"
     lo, hi = b["slope_ci95"]
     assert lo <= truth_slope(name, [p["shear_rate"] for p in report["points"]]) <= hi
+    law = truth(name)["fluid"]["law"]
+    fitted = report["joint_fit"]["laws"][law["name"]]
+    for parameter, value in law["params"].items():
+        if fitted["identifiable"][parameter]:  # a profile interval (docs/flow-curve.md, step 5)
+            assert fitted["ci95"][parameter][0] <= value <= fitted["ci95"][parameter][1]
 
 
 def test_a_shortened_planned_recording_is_shear_thinning(tmp_path):
