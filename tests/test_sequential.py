@@ -39,7 +39,7 @@ def test_one_point_decides_nothing_and_its_gain_is_lindleys():
     so_far = stir_of(law, (0.04,), log_std=0.05)
     step = next_segment(so_far, CALIBRATION, prior, SETTINGS)
     assert not step.decided and step.family is None and step.confidence == 0.0
-    assert step.speed in SETTINGS.levels() and step.score == max(step.scores.values())
+    assert step.speed in SETTINGS.levels() and step.speed == max(step.rates, key=step.rates.get)
     rate = CALIBRATION.shear_rate(0.04)
     precision = prior.precision("newtonian", rate)[0] + 1 / 0.05**2
     for speed, score in step.scores.items():
@@ -49,6 +49,7 @@ def test_one_point_decides_nothing_and_its_gain_is_lindleys():
         (point,) = window_points([Window(speed, samples)], law, CALIBRATION, SETTINGS.errors)
         information = point.gradient[0] ** 2 / point.log_error**2
         assert score == pytest.approx(0.5 * math.log((precision + information) / precision), rel=1e-9)
+        assert step.durations[speed] == duration and step.rates[speed] == score / duration
 
 
 def test_an_undecided_stir_asks_for_a_segment_while_the_budget_holds_one():

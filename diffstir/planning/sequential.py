@@ -16,8 +16,10 @@ is scored as the plan scores a programme, in nats, each term averaged over the l
 
 The stir is decided when the family of the best law (``fitting.law_family`` over the points' shear rates) holds a
 Schwarz weight of at least ``DECIDED``, as the flow-curve analysis states its confidence
-(``Classification.with_law_families``); otherwise its next segment is the best-scored speed whose segment still
-fits the budget. The segment is a stir of its own from rest: the analysis that plans it takes minutes, in which the
+(``Classification.with_law_families``); otherwise its next segment is the speed of the highest score per second of
+stirring among those whose segment still fits the budget: a slow speed's stir lasts longer (below), and the time it
+takes is the budget's, which another stir could have spent (information per unit cost, as cost-aware sequential
+designs weigh it). The segment is a stir of its own from rest: the analysis that plans it takes minutes, in which the
 rod rests and the fluid stops, so each step is a recording, and the analysis reads all of them together. From rest
 is also how the plan's window model is calibrated. A recording must span one stirring period (``recording
 .validate``), about a turn of the circle, so a slow speed's stir lasts longer than the plan's segment
@@ -93,7 +95,8 @@ class NextSegment:
     """What the stir so far calls for: whether its family is ``decided`` (``family`` at Schwarz weight
     ``confidence``; None and 0 before its points span two shear rates), and otherwise the next stir (``speed``
     [m/s] for ``duration`` [s], its ramp ``ramp_time`` [s] from rest included; None when the budget left holds
-    none) with its ``score`` [nats] and every candidate's (``scores``)."""
+    none) with its ``score`` [nats], and every candidate speed's score [nats] and stir's length [s] (``scores``,
+    ``durations``)."""
 
     decided: bool
     family: str | None
@@ -103,6 +106,12 @@ class NextSegment:
     ramp_time: float
     score: float | None
     scores: dict[float, float]
+    durations: dict[float, float]
+
+    @property
+    def rates(self) -> dict[float, float]:
+        """Each candidate's score per second of its stir [nats/s], by which the next stir is chosen."""
+        return {u: score / self.durations[u] for u, score in self.scores.items()}
 
     def programme(self, radius: float) -> dict:
         """The next stir as a ``conf/lab/programme`` mapping on a circle of ``radius`` [m]."""
@@ -112,9 +121,11 @@ class NextSegment:
     def to_dict(self) -> dict:
         return {"decided": self.decided, "family": self.family, "confidence": self.confidence,
                 "next": None if self.speed is None else {"speed": self.speed, "duration": self.duration,
-                                                         "ramp_time": self.ramp_time, "score": self.score},
-                "scores": {f"{u:g}": s for u, s in self.scores.items()},
-                "units": {"speed": "m/s", "duration": "s", "ramp_time": "s", "score": "nats"}}
+                                                         "ramp_time": self.ramp_time, "score": self.score,
+                                                         "rate": self.score / self.duration},
+                "candidates": {f"{u:g}": {"score": s, "duration": self.durations[u], "rate": self.rates[u]}
+                               for u, s in self.scores.items()},
+                "units": {"speed": "m/s", "duration": "s", "ramp_time": "s", "score": "nats", "rate": "nats/s"}}
 
 
 def family_weights(so_far: StirSoFar, fits: dict[str, PointsFit], weights: dict[str, float]
@@ -149,7 +160,7 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
     segment = settings.budget / settings.max_segments
     left = settings.budget - so_far.elapsed
     if confidence >= DECIDED:
-        return NextSegment(True, family, confidence, None, segment, 0.0, None, {})
+        return NextSegment(True, family, confidence, None, segment, 0.0, None, {}, {})
     own = dataclasses.replace(calibration, shear_rate_factor=so_far.rate_per_speed * calibration.rod_radius)
     reference_rate = float(np.exp(np.mean(np.log(so_far.shear_rates))))
     sigma = np.array(so_far.log_std)
@@ -168,10 +179,10 @@ def next_segment(so_far: StirSoFar, calibration: Calibration, prior: Prior | Non
             durations[speed] = duration
             scores[speed] = _score(so_far, fits, weights, precisions, Window(speed, samples), own, settings)
     if not scores:  # the budget left holds no valid stir with its ramp, settling and a window
-        return NextSegment(False, family, confidence, None, segment, 0.0, None, {})
-    speed = max(scores, key=scores.get)
+        return NextSegment(False, family, confidence, None, segment, 0.0, None, {}, {})
+    speed = max(scores, key=lambda u: scores[u] / durations[u])
     ramp = settings.arm.ramp_time(speed, settings.min_ramp)
-    return NextSegment(False, family, confidence, speed, durations[speed], ramp, scores[speed], scores)
+    return NextSegment(False, family, confidence, speed, durations[speed], ramp, scores[speed], scores, durations)
 
 
 def shortest_stir(speed: float, least: float, ramp_time: float, settings: PlanSettings) -> float:

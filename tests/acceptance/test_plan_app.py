@@ -67,7 +67,10 @@ def test_the_sequential_mode_plans_the_next_stir_of_an_undecided_one(tmp_path):
     assert not step["decided"] and step["elapsed"] == 4.0
     speed, duration = step["next"]["speed"], step["next"]["duration"]
     assert speed in (0.02, 0.04, 0.08, 0.16)  # 0.01 m/s: a recording's turn of the circle takes 9.4 s, over 4 s
-    assert 2.0 <= duration <= 4.0 and step["next"]["score"] == max(step["scores"].values())
+    assert 2.0 <= duration <= 4.0  # the best score per second of stirring among the candidates
+    assert step["next"]["rate"] == max(c["rate"] for c in step["candidates"].values())
+    assert step["candidates"][f"{speed:g}"] == {"score": step["next"]["score"], "duration": duration,
+                                                "rate": step["next"]["rate"]}
     programme = yaml.safe_load((tmp_path / "next" / "lab" / "programme" / "planned.yaml").read_text())
     assert programme["segments"] == [{"speed": speed, "duration": duration}]
     path = load_trajectory(tmp_path / "next" / "stir_path.csv")
