@@ -178,17 +178,23 @@ def main() -> None:
                        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch thread per process"}
                 if kind == "planned":
                     row["coverage"] = coverage(fluid.law, case["laws"])
-                    law = fluid.make_law().double()
-                    for point in row["points"]:
-                        with torch.no_grad():
-                            eta = float(law(torch.tensor([point["shear_rate"]], dtype=torch.float64)))
-                        lo, hi = point["viscosity_ci95"]
-                        point.update(truth=eta, error=point["viscosity"] / eta - 1.0, holds=bool(lo <= eta <= hi))
+                    against_truth(row["points"], fluid)
                 rows.append(row)
                 save(args.out, rows)
                 print(f"{fluid_name} {kind} seed {seed}: {case['class']} (truth {family}), {case['seconds']:.0f} s",
                       flush=True)
     print(table(rows))
+
+
+def against_truth(points: list[dict], fluid: Fluid) -> None:
+    """Each report point (``shear_rate`` [1/s], ``viscosity`` [Pa·s], ``viscosity_ci95``) given the truth's
+    viscosity at its shear rate, its relative error and whether its interval holds the truth."""
+    law = fluid.make_law().double()
+    for point in points:
+        with torch.no_grad():
+            eta = float(law(torch.tensor([point["shear_rate"]], dtype=torch.float64)))
+        lo, hi = point["viscosity_ci95"]
+        point.update(truth=eta, error=point["viscosity"] / eta - 1.0, holds=bool(lo <= eta <= hi))
 
 
 def refit(row: dict) -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 from identification_benchmark import sensor_preset, sim
-from plan_benchmark import FLUIDS, fluid_named, truth_family
+from plan_benchmark import FLUIDS, against_truth, fluid_named, truth_family
 
 from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.lab import stirring_programme
@@ -65,12 +65,13 @@ def main() -> None:
         step = next_segment(so_far, calibration, prior, settings)
         planned = time.perf_counter() - planning
         rates = [p["shear_rate"] for p in summary["points"]]
+        points = [{k: p[k] for k in ("speed", "shear_rate", "viscosity", "viscosity_ci95")} for p in summary["points"]]
+        against_truth(points, fluid)
         steps.append({"fluid": args.fluid, "seed": args.seed, "programme": programme, "elapsed": so_far.elapsed,
                       "truth_family": truth_family(fluid.law, (min(rates), max(rates))),
                       "analysis_class": summary["behaviour"]["class"],
                       "analysis_confidence": summary["behaviour"]["confidence"],
-                      "points": [{k: p[k] for k in ("speed", "shear_rate", "viscosity", "viscosity_ci95")}
-                                 for p in summary["points"]],
+                      "points": points,
                       "step": step.to_dict(), "truth_seconds": simulated, "plan_seconds": planned,
                       "seconds": time.perf_counter() - started,
                       "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"),
