@@ -75,7 +75,7 @@ def plan_next(cfg: DictConfig, rig: Rig, sim_config: SimConfig, prior: Prior, se
         return
     paths = write_programme(step.programme(settings.radius), out)
     print(f"plan: next stir {step.speed:g} m/s for {step.duration:.3g} s ({step.score:.3g} nats, "
-          f"{step.score / step.duration:.3g} nats/s; so far "
+          f"{step.rates[step.speed]:.3g} nats/s; so far "
           f"{step.family or 'no family'}, confidence {step.confidence:.3g}); wrote {out / 'next.json'}, "
           f"{paths['programme']}, {paths['path']}")
 

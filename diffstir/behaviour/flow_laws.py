@@ -4,8 +4,9 @@ Each recording's windows are read by Newtonian simulations of its whole programm
 (``fitting.programme_viscosities``): the points η_k at γ̇_k = k_s U_k / a are the windows' Newtonian-equivalent
 viscosities. The laws are then fitted to the points, as a rheometer's flow curve is (``fitting.fit_points``:
 weighted least squares in ln η with each point's error from noise and simulator together, BIC = χ² + k ln S;
-each parameter's interval from its profile likelihood, ``fitting.profiled``), with no further simulation. This is the planner's model of a programme's windows (``planning.information``, whose
-calibration stirs each speed from rest). It costs at most ``fitting.PROGRAMME_SIMULATIONS`` simulations per
+each parameter's interval from its profile likelihood, ``fitting.profiled``), with no further simulation. This is
+the planner's model of a programme's windows (``planning.information``, whose calibration stirs each speed from
+rest). It costs at most ``fitting.PROGRAMME_SIMULATIONS`` simulations per
 recording, where the simulated analysis fits every window and every law through the simulator.
 
 The class is that of the law the points select by BIC over the probed shear rates (``fitting.family``), as

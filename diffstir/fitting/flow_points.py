@@ -130,8 +130,8 @@ def profiled(fit: PointsFit, shear_rate, viscosity, log_std) -> PointsFit:
     rates, eta, sigma = (np.asarray(v, dtype=np.float64) for v in (shear_rate, viscosity, log_std))
     model = fit.model
     residuals, jacobian = _objective(model, rates, eta, sigma)
-    k, s = model.size, rates.size
-    rise = Z95**2 * (max(1.0, fit.chi2 / (s - k)) if s > k else 1.0)
+    k = model.size
+    rise = Z95**2 * fit.uncertainty.residual_std**2  # Z95² B², B the fit's Birge ratio
     ci95, identifiable = {}, {}
     for j, name in enumerate(model.names):
         ends = [_profile_end(residuals, jacobian, model, fit.theta, fit.chi2 + rise, j, side) for side in (-1, 1)]

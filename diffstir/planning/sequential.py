@@ -122,7 +122,7 @@ class NextSegment:
         return {"decided": self.decided, "family": self.family, "confidence": self.confidence,
                 "next": None if self.speed is None else {"speed": self.speed, "duration": self.duration,
                                                          "ramp_time": self.ramp_time, "score": self.score,
-                                                         "rate": self.score / self.duration},
+                                                         "rate": self.rates[self.speed]},
                 "candidates": {f"{u:g}": {"score": s, "duration": self.durations[u], "rate": self.rates[u]}
                                for u, s in self.scores.items()},
                 "units": {"speed": "m/s", "duration": "s", "ramp_time": "s", "score": "nats", "rate": "nats/s"}}
