@@ -9,6 +9,7 @@ import torch
 
 from diffstir.fitting.uncertainty import MODEL_FORCE_ERROR, Z95
 from diffstir.mpm import Corotated, SimConfig, StirringSimulator
+from diffstir.mpm.materials import polar_rotation
 from diffstir.rheology import Bingham, Carreau, Cross, HerschelBulkley, Newtonian, PowerLaw
 from diffstir.rig import Rig
 from diffstir.trajectory import circle, spin, stationary, translate
@@ -75,6 +76,27 @@ def test_corotated_gradient_matches_central_differences():
         down = _loss(sim, trajectory)
         material.log_shear_modulus += eps
     assert float(g) == pytest.approx(float((up - down) / (2 * eps)), rel=1e-5)
+
+
+def test_a_corotated_baseline_that_blows_up_raises_what_the_fit_rejects():
+    """A shear modulus far past the explicit step's stability (μ Δt² / (ρ Δx²) ≫ 1) crushes particles (F = I + Δt ∇v
+    singular): the rollout ends in FloatingPointError, the error the fit turns into a rejected trial step, not in
+    the linear algebra's."""
+    trajectory = circle(radius=0.015, speed=0.05, duration=0.05, ramp_time=0.01)
+    for shear_modulus in (1e5, 1e8):  # Pa; stability needs μ < ρ Δx² / Δt² = 25 kPa here
+        sim = StirringSimulator(Corotated(shear_modulus=shear_modulus).double(), Rig(), TINY, density=1000.0)
+        with pytest.raises(FloatingPointError, match="became non-finite"), torch.no_grad():
+            sim(trajectory)
+
+
+def test_the_polar_rotation_is_that_of_f_and_nan_where_f_is_singular():
+    angle = 0.3
+    rotation = torch.tensor([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]], **F64)
+    stretch = torch.tensor([[1.2, 0.1], [0.1, 0.9]], **F64)  # symmetric positive definite
+    F = torch.stack([rotation @ stretch, torch.ones(2, 2, **F64)])
+    R = polar_rotation(F)
+    torch.testing.assert_close(R[0], rotation, rtol=0, atol=1e-12)
+    assert torch.isnan(R[1]).all()
 
 
 def test_checkpointing_does_not_change_forces_or_gradients():

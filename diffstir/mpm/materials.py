@@ -167,9 +167,13 @@ def polar_rotation(F: Tensor, iterations: int = 8) -> Tensor:
     """Rotation R of the polar decomposition F = R S, by Newton's iteration X ← (X + X⁻ᵀ)/2.
 
     Smooth everywhere F is invertible, unlike an SVD whose gradient is undefined at repeated singular values
-    (every particle at rest). Converges quadratically for F near a rotation, which is the case for a liquid.
+    (every particle at rest). Converges quadratically for F near a rotation, which is the case for a liquid. A
+    singular F (a step that crushes a particle: Δt ∇v with an eigenvalue −1, a rollout blowing up) has no
+    rotation: its R is NaN, which the simulator reports as a non-finite state.
     """
     X = F
     for _ in range(iterations):
-        X = 0.5 * (X + torch.linalg.inv(X).transpose(-1, -2))
+        inverse, info = torch.linalg.inv_ex(X)
+        inverse = torch.where((info != 0)[..., None, None], torch.nan, inverse)
+        X = 0.5 * (X + inverse.transpose(-1, -2))
     return X
