@@ -6,7 +6,7 @@ Fluids of every family, each stirred twice: with the default plan's programme fo
 (``conf/lab/programme/example.yaml``, 0.05 m/s for 2.5 s). Each truth is simulated once per fluid and programme on
 ``conf/lab/sim/truth2d.yaml`` (2-D MPM, 2 mm cells, finer than the fit: truth 2-D MPM, so the figures show the
 analysis against a finer run of its own kind of simulator, not against a real cup) and read by the paper's sensor
-(``conf/lab/sensor/paper.yaml``) with seeds 0..S-1.
+(``conf/lab/sensor/paper.yaml``) with seeds F..F+S-1 (``--first-seed``, ``--seeds``).
 
 - planned: analysed as ``diffstir-fit experiment=flow_curve`` does (``behaviour.analysis=flow_curve`` on
   ``sim=slice2d``); its class, and each parameter of the truth's law among the laws fitted to the points with
@@ -17,10 +17,17 @@ analysis against a finer run of its own kind of simulator, not against a real cu
 The truth's family is the one its law shows over the plan's effective shear rates (``identification_benchmark
 .true_class``). ``--refit`` fits the laws again to each planned case's stored points, the analysis's last step
 (``behaviour.flow_laws.laws_of_points``, no simulation), so a change in how the laws are fitted is measured on the
-same points. A yield-stress truth on the 2 mm grid takes hours (its capped viscosity), and each planned analysis
-about 4-10 minutes on 2 cores: the full table is a study of many hours, resumed by rerunning the same command.
+same points. On one core a truth of the 8 s programme takes about 2-4 minutes, a planned analysis 4-10 and a
+one-speed one 6-15: the full table is a study of many hours, resumed by rerunning the same command. ``--truths DIR``
+keeps each truth simulation in DIR (``<fluid>_<programme>.npz``, with what made it) and reads it back instead of
+simulating it again; ``--jobs N`` runs N cases side by side, one process each (the truths they need first, N at a
+time), for a machine of many cores; ``--simulate-only`` makes the truths alone, and ``--merge`` gathers the rows of
+runs made elsewhere.
 
-    python scripts/plan_benchmark.py --out FILE.json [--fluids carreau_example ...] [--seeds 3] [--skip-single]
+    python scripts/plan_benchmark.py --out FILE.json [--fluids carreau_example ...] [--seeds 3] [--first-seed 0]
+                                     [--programmes planned example] [--truths DIR]
+    python scripts/plan_benchmark.py --truths DIR --simulate-only [--jobs 6] [--fluids bingham ...] [--programmes ...]
+    python scripts/plan_benchmark.py --out FILE.json --merge OTHER.json ... [--refit]
     python scripts/plan_benchmark.py --out FILE.json --refit
 """
 
@@ -28,12 +35,19 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import json
 import math
+import multiprocessing
+import os
 import platform
+import signal
+import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
 import torch
 import yaml
 from identification_benchmark import CONF, finished, fluid_preset, save, sensor_preset, sim, true_class
@@ -42,8 +56,9 @@ from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.behaviour.flow_laws import laws_of_points
 from diffstir.fitting import Z95, FitSettings
 from diffstir.identification import identify
-from diffstir.lab import Fluid, make_fluid_law, stirring_programme
-from diffstir.lab.synth import read_truth, simulate_truth
+from diffstir.lab import Fluid, HiddenPhysicsSpec, make_fluid_law, stirring_programme
+from diffstir.lab.synth import TruthSimulation, read_truth, simulate_truth
+from diffstir.rig import Rig
 from diffstir.planning.calibration import SHIPPED, Calibration
 from diffstir.rheology import fit_flow_curve, load_flow_curves
 
@@ -97,19 +112,95 @@ def programme(name: str) -> tuple[dict, object]:
                                     start_angle=spec.get("start_angle", 0.0))
 
 
+def truth_identity(fluid: Fluid, kind: str) -> dict:
+    """What a truth simulation of ``fluid`` stirred by the ``kind`` programme is made from (the truth settings less
+    their device): a stored truth is read back only where this is unchanged."""
+    spec, _ = programme(PROGRAMMES[kind])
+    config = {k: v for k, v in asdict(sim("lab/sim/truth2d.yaml")).items() if k != "device"}
+    return json.loads(json.dumps({"fluid": {"name": fluid.name, "density": fluid.density, "law": fluid.law},
+                                  "programme": spec, "sim": config, "rig": asdict(Rig())}))
+
+
+def store_truth(path: Path, truth: TruthSimulation, seconds: float, identity: dict) -> None:
+    """Write ``truth``'s force [N] at its times [s] to ``path`` (.npz) with ``identity`` and what it cost; the file
+    appears whole or not at all."""
+    made = {"dt": truth.dt, "discretisation": truth.discretisation, "per_unit_length": truth.per_unit_length,
+            "slice_factor": truth.slice_factor, "seconds": seconds, "machine": machine(),
+            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes")}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial.npz")
+    np.savez(partial, times=truth.times, force=truth.force, identity=json.dumps(identity), made=json.dumps(made))
+    partial.replace(path)
+
+
+def stored_truth(path: Path, fluid_name: str, kind: str) -> tuple[TruthSimulation, float] | None:
+    """The truth stored at ``path`` and its wall time [s]; None where there is none. A stored truth made from
+    anything else than the current fluid, programme, rig and truth settings is refused, naming the file."""
+    if not path.exists():
+        return None
+    fluid = fluid_named(fluid_name)
+    with np.load(path) as data:
+        identity, made = json.loads(str(data["identity"])), json.loads(str(data["made"]))
+        times, force = data["times"], data["force"]
+    if identity != truth_identity(fluid, kind):
+        raise SystemExit(f"{path}: made from other settings than the current {fluid_name} {kind} truth; move it "
+                         f"away to simulate it again")
+    _, trajectory = programme(PROGRAMMES[kind])
+    truth = TruthSimulation(fluid, trajectory, Rig(), sim("lab/sim/truth2d.yaml"), HiddenPhysicsSpec(), times,
+                            force, made["dt"], made["discretisation"], made["per_unit_length"], made["slice_factor"])
+    return truth, made["seconds"]
+
+
+@functools.lru_cache(maxsize=1)  # the cases of one fluid and programme follow each other in one process
+def truth_of(fluid_name: str, kind: str, store: Path | None) -> tuple[TruthSimulation, float]:
+    """``fluid_name``'s truth under the ``kind`` programme and its wall time [s]: read from ``store`` where it is
+    there, else simulated on ``conf/lab/sim/truth2d.yaml`` (and stored, where ``store`` is given)."""
+    path = None if store is None else store / f"{fluid_name}_{kind}.npz"
+    found = None if path is None else stored_truth(path, fluid_name, kind)
+    if found is not None:
+        return found
+    _, trajectory = programme(PROGRAMMES[kind])
+    clock = time.perf_counter()
+    truth = simulate_truth(fluid_named(fluid_name), trajectory, sim_config=sim("lab/sim/truth2d.yaml"))
+    seconds = time.perf_counter() - clock
+    if path is not None:
+        store_truth(path, truth, seconds, truth_identity(fluid_named(fluid_name), kind))
+    return truth, seconds
+
+
+def machine() -> str:
+    return f"{platform.machine()}, {os.cpu_count()} CPUs, 1 torch thread per process"
+
+
+def plan_band() -> tuple[float, float]:
+    """The least and greatest effective shear rate [1/s] of the default plan's speeds (the shipped calibration)."""
+    spec, _ = programme(PROGRAMMES["planned"])
+    calibration = Calibration.from_dict(json.loads(next(SHIPPED.glob("calibration-*.json")).read_text()))
+    rates = sorted(calibration.shear_rate(s["speed"]) for s in spec["segments"])
+    return rates[0], rates[-1]
+
+
+#: A truth's law that the analysis fits as a special case of another: that law, and its parameters from the truth's.
+NESTED = {"bingham": ("herschel_bulkley", lambda p: {"tau_y": p["tau_y"], "k": p["eta_p"], "n": 1.0})}
+
+
 def coverage(truth_law: dict, laws: dict) -> list[dict]:
-    """Each parameter of the truth's law among the fitted ``laws`` (a report's ``joint_fit.laws``): its interval
-    and whether it holds the truth; empty where the truth's law was not fitted (a tabulated curve)."""
-    law = laws.get(truth_law["name"])
+    """Each parameter of the truth's law among the fitted ``laws`` (a report's ``joint_fit.laws``), or of the law
+    that holds it (``NESTED``): its interval and whether it holds the truth; empty where no fitted law holds the
+    truth's (a tabulated curve)."""
+    name, params = truth_law["name"], truth_law.get("params")
+    if name in NESTED:
+        name, params = NESTED[name][0], NESTED[name][1](params)
+    law = laws.get(name)
     if law is None:
         return []
     rows = []
-    for name, value in truth_law["params"].items():
-        lo, hi = law["ci95"][name] if law["ci95"][name] is not None else (None, None)
+    for parameter, value in params.items():
+        lo, hi = law["ci95"][parameter] if law["ci95"][parameter] is not None else (None, None)
         low = -math.inf if lo is None else lo
         high = math.inf if hi is None else hi
-        rows.append({"parameter": name, "truth": value, "fitted": law["params"][name], "ci95": [lo, hi],
-                     "identifiable": law["identifiable"][name], "holds": bool(low <= value <= high)})
+        rows.append({"parameter": parameter, "truth": value, "fitted": law["params"][parameter], "ci95": [lo, hi],
+                     "identifiable": law["identifiable"][parameter], "holds": bool(low <= value <= high)})
     return rows
 
 
@@ -133,57 +224,120 @@ def single_case(recording, workers: int) -> dict:
     return {"class": summary["family"]["class"], "selected": summary["selection"]["selected"],
             "seconds": time.perf_counter() - started}
 
+def case_row(fluid_name: str, kind: str, seed: int, workers: int, store: Path | None) -> dict:
+    """The benchmark's row of ``fluid_name``'s truth under the ``kind`` programme, read by the paper's sensor with
+    ``seed`` and analysed with ``workers`` processes."""
+    torch.set_num_threads(1)
+    fluid = fluid_named(fluid_name)
+    family = truth_family(fluid.law, plan_band())
+    truth, truth_seconds = truth_of(fluid_name, kind, store)
+    recording = read_truth(truth, sensor_preset("paper"), seed=seed, name=f"{fluid_name}_{kind}").recording
+    case = planned_case(recording, sim("sim/slice2d.yaml"), workers) if kind == "planned" else single_case(
+        recording, workers)
+    row = {"fluid": fluid_name, "programme": kind, "seed": seed, "truth_class": family,
+           "right": case["class"] == family, "truth_law": fluid.law, "truth_seconds": truth_seconds, **case,
+           "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"), "machine": machine()}
+    if kind == "planned":
+        row["coverage"] = coverage(fluid.law, case["laws"])
+        against_truth(row["points"], fluid)
+    return row
+
+
+def _attempt(task: tuple) -> tuple[tuple, dict | None, str | None]:
+    """``case_row`` of ``task`` in a pool's process: the task, its row, or the error that ended it."""
+    try:
+        return task, case_row(*task), None
+    except Exception as error:  # one case's failure is reported and leaves the others running
+        return task, None, f"{type(error).__name__}: {error}"
+
+
+def _make_truth(task: tuple) -> str:
+    """Simulate and store one truth (a ``--simulate-only`` task); its line for the log."""
+    torch.set_num_threads(1)
+    fluid_name, kind, store = task
+    truth, seconds = truth_of(fluid_name, kind, store)
+    return f"{fluid_name} {kind}: {truth.times.size} steps of {truth.dt:.2e} s, {seconds:.0f} s"
+
+
+def in_pool(function, tasks: list, jobs: int):
+    """``function`` of each task as it finishes: in this process when ``jobs`` is 1, else ``jobs`` processes
+    side by side, ended with this one (SIGTERM exits 143)."""
+    if jobs <= 1:
+        yield from map(function, tasks)
+        return
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    pool = multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1)
+    try:
+        yield from pool.imap_unordered(function, tasks)
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def simulate_only(pairs: list[tuple[str, str]], store: Path, jobs: int) -> None:
+    """The missing truths of ``pairs`` (fluid, programme), ``jobs`` at a time, each stored as soon as it ends."""
+    missing = [(f, k, store) for f, k in pairs if not (store / f"{f}_{k}.npz").exists()]
+    if missing:
+        print(f"{len(missing)} truths to simulate, {jobs} at a time: "
+              f"{', '.join(f'{f} {k}' for f, k, _ in missing)}", flush=True)
+    for line in in_pool(_make_truth, missing, jobs):
+        print(line, flush=True)
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--fluids", nargs="+", default=list(FLUIDS))
-    parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--skip-single", action="store_true", help="the planned programme only")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, required=True, help="JSON of the cases; a rerun skips those in it")
+    parser.add_argument("--fluids", nargs="+", choices=list(FLUIDS), default=list(FLUIDS))
+    parser.add_argument("--seeds", type=int, default=3, help="sensor seeds per fluid and programme")
+    parser.add_argument("--first-seed", type=int, default=0, help="the seeds are FIRST_SEED .. FIRST_SEED+SEEDS-1")
+    parser.add_argument("--programmes", nargs="+", choices=list(PROGRAMMES), default=list(PROGRAMMES),
+                        help="planned: the default plan's; example: the one-speed default")
+    parser.add_argument("--workers", type=int, default=2, help="processes of one analysis (1 with --jobs > 1)")
+    parser.add_argument("--jobs", type=int, default=1, help="cases (or truths) run side by side")
+    parser.add_argument("--truths", type=Path, help="folder of stored truth simulations, read and added to")
+    parser.add_argument("--simulate-only", action="store_true", help="simulate the missing truths into --truths")
+    parser.add_argument("--out", type=Path, help="JSON of the cases; a rerun skips those in it")
     parser.add_argument("--refit", action="store_true", help="fit the laws again to the planned cases' points")
+    parser.add_argument("--merge", nargs="+", type=Path, default=[], metavar="FILE",
+                        help="add the cases of these JSONs that --out lacks")
     args = parser.parse_args()
+    pairs = [(f, k) for f in args.fluids for k in args.programmes]
+    if args.simulate_only:
+        if args.truths is None:
+            parser.error("--simulate-only needs --truths DIR")
+        simulate_only(pairs, args.truths, args.jobs)
+        return
+    if args.out is None:
+        parser.error("the following arguments are required: --out (or --simulate-only)")
+    if args.jobs > 1 and args.truths is None:
+        parser.error("--jobs > 1 needs --truths DIR: the cases of one fluid and programme share its truth")
     torch.set_num_threads(1)
     rows = finished(args.out)
-    if args.refit:
-        for row in rows:
+    done = {(r["fluid"], r["programme"], r["seed"]) for r in rows}
+    if args.merge or args.refit:
+        for path in args.merge:
+            rows += [r for r in finished(path) if (r["fluid"], r["programme"], r["seed"]) not in done]
+            done = {(r["fluid"], r["programme"], r["seed"]) for r in rows}
+        for row in rows if args.refit else ():
             if row["programme"] == "planned":
                 refit(row)
         save(args.out, rows)
         print(table(rows))
         return
-    done = {(r["fluid"], r["programme"], r["seed"]) for r in rows}
-    truth_config, config, sensor = sim("lab/sim/truth2d.yaml"), sim("sim/slice2d.yaml"), sensor_preset("paper")
-    planned_spec, _ = programme("paper_plan")
-    calibration = Calibration.from_dict(json.loads(next(SHIPPED.glob("calibration-*.json")).read_text()))
-    rates = sorted(calibration.shear_rate(s["speed"]) for s in planned_spec["segments"])  # the plan's γ̇_eff [1/s]
-    for fluid_name in args.fluids:
-        fluid = fluid_named(fluid_name)
-        family = truth_family(fluid.law, (rates[0], rates[-1]))
-        for kind in ("planned", "example") if not args.skip_single else ("planned",):
-            seeds = [s for s in range(args.seeds) if (fluid_name, kind, s) not in done]
-            if not seeds:
-                continue
-            _, trajectory = programme(PROGRAMMES[kind])
-            clock = time.perf_counter()
-            truth = simulate_truth(fluid, trajectory, sim_config=truth_config)
-            truth_seconds = time.perf_counter() - clock
-            for seed in seeds:
-                recording = read_truth(truth, sensor, seed=seed, name=f"{fluid_name}_{kind}").recording
-                case = planned_case(recording, config, args.workers) if kind == "planned" else single_case(
-                    recording, args.workers)
-                row = {"fluid": fluid_name, "programme": kind, "seed": seed, "truth_class": family,
-                       "right": case["class"] == family, "truth_law": fluid.law, "truth_seconds": truth_seconds,
-                       **case, "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"),
-                       "machine": f"{platform.machine()}, {torch.get_num_threads()} torch thread per process"}
-                if kind == "planned":
-                    row["coverage"] = coverage(fluid.law, case["laws"])
-                    against_truth(row["points"], fluid)
-                rows.append(row)
-                save(args.out, rows)
-                print(f"{fluid_name} {kind} seed {seed}: {case['class']} (truth {family}), {case['seconds']:.0f} s",
-                      flush=True)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    tasks = [(f, k, s, args.workers if args.jobs <= 1 else 1, args.truths) for f, k in pairs for s in seeds
+             if (f, k, s) not in done]
+    if args.jobs > 1:
+        simulate_only(sorted({(f, k) for f, k, *_ in tasks}, key=pairs.index), args.truths, args.jobs)
+    for (fluid_name, kind, seed, *_), row, error in in_pool(_attempt, tasks, args.jobs):
+        if row is None:
+            print(f"{fluid_name} {kind} seed {seed}: failed: {error}", flush=True)
+            continue
+        rows.append(row)
+        save(args.out, rows)
+        print(f"{fluid_name} {kind} seed {seed}: {row['class']} (truth {row['truth_class']}), {row['seconds']:.0f} s",
+              flush=True)
     print(table(rows))
+
 
 
 def against_truth(points: list[dict], fluid: Fluid) -> None:
@@ -228,11 +382,14 @@ def table(rows: list[dict]) -> str:
     if points:
         errors = [p["error"] for p in points]
         lines.append(f"planned: the truth's viscosity inside the windows' 95 % intervals "
-                     f"{sum(p['holds'] for p in points)}/{len(points)}, errors {min(errors):+.1%} to {max(errors):+.1%}")
+                     f"{sum(p['holds'] for p in points)}/{len(points)}, errors {min(errors):+.1%} to "
+                     f"{max(errors):+.1%}")
     held = [c for r in rows if r["programme"] == "planned" for c in r.get("coverage", [])]
     if held:
-        lines.append(f"planned: the truth's parameters inside their 95 % intervals {sum(c['holds'] for c in held)}"
-                     f"/{len(held)} ({sum(c['identifiable'] for c in held)} identifiable)")
+        identified = [c for c in held if c["identifiable"]]
+        lines.append(f"planned: the truth law's identified parameters inside their 95 % intervals "
+                     f"{sum(c['holds'] for c in identified)}/{len(identified)}; {len(held) - len(identified)} "
+                     f"parameters not identified (fitting.uncertainty.identifiable_half_width)")
     return "\n".join(lines)
 
 
