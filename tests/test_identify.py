@@ -16,7 +16,8 @@ from diffstir.fitting.initial import (YIELD_SHARES, ViscosityLadder, effective_s
                                       newtonian_embedding)
 from diffstir.fitting.models import FitModel
 from diffstir.fitting.nuisance import lag_response
-from diffstir.fitting.optimise import CONVERGED_STEP, FD_STEP, SECANT_FRACTION, _BroydenJacobian, fit_model
+from diffstir.fitting.optimise import (CONVERGED_STEP, FD_STEP, SECANT_FRACTION, _BroydenJacobian,
+                                      baseline_shear_modulus_limit, fit_model, stable_baseline_start)
 from diffstir.fitting.problem import StirProblem, Windows
 from diffstir.fitting.selection import averaged_interval, bic, bic_weights, select
 from diffstir.fitting.magnitude import RESOLVED_FACTOR, TOLERANCE
@@ -62,6 +63,32 @@ def synthetic_recording(law, duration=0.4, noise=NOISE, seed=0, config=FAST, tim
 @pytest.fixture(scope="module")
 def newtonian_recording():
     return synthetic_recording(Newtonian(eta=TRUE_ETA))
+
+
+def test_a_baseline_too_stiff_for_its_step_starts_from_the_stiffest_stable_one():
+    """A thick fluid's corotated start (μ = η / Δt at the step of a 1 Pa·s fluid) raises the sound speed until the
+    acoustic number c Δt / Δx leaves its step no room: the fit starts from the stiffest μ whose own sound speed
+    keeps the step stable, and simulates, where it blew up at its start. A stable start is left as it is."""
+    recording = synthetic_recording(Newtonian(eta=20.0), duration=0.2)
+    problem = StirProblem(recording, FAST, 1000.0)
+    dt = problem.simulator(Newtonian(eta=1.0)).time_step(problem.trajectory)
+
+    def limit(mu):  # the stiffest stable μ [Pa] under the sound speed that μ sets
+        c = problem.simulator(FitModel.named("corotated", dt=dt, shear_modulus=mu).material).sound_speed(
+            problem.trajectory)
+        return baseline_shear_modulus_limit(FAST, 1000.0, dt, c)
+
+    stiff = FitModel.named("corotated", dt=dt, shear_modulus=20.0 / dt)
+    assert limit(20.0 / dt) < 20.0 / dt
+    stable_baseline_start(problem, stiff)
+    mu = stiff.params_si()["shear_modulus"]
+    # the largest stable one, to the bisection's step and the parameter's float32
+    assert mu <= limit(mu) * (1 + 1e-6) and mu * 1.001 > limit(mu * 1.001)
+    fit = fit_model(problem, FitModel.named("corotated", dt=dt, shear_modulus=20.0 / dt), max_iterations=1)
+    assert math.isfinite(fit.loss) and fit.model.params_si()["shear_modulus"] <= limit(mu) * (1 + 1e-6)
+    soft = FitModel.named("corotated", dt=dt, shear_modulus=0.5 / dt)
+    stable_baseline_start(problem, soft)
+    assert soft.params_si()["shear_modulus"] == pytest.approx(0.5 / dt, rel=1e-6)
 
 
 def test_a_recorded_path_is_replayed_along_the_smooth_curve_through_its_samples():

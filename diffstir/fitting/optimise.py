@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from scipy import optimize
 
+from ..mpm import SimConfig
 from .models import FitModel
 from .nuisance import NO_NUISANCE, SensorNuisance, lag_response
 from .parameters import MaterialParameters
@@ -234,6 +235,33 @@ def noise_scale(measured: np.ndarray, resolution: float | None) -> float:
     return max(mad, floor, 1e-12)
 
 
+def baseline_shear_modulus_limit(config: SimConfig, density: float, dt: float, sound_speed: float) -> float:
+    """The stiffest corotated baseline [Pa] stable at its fixed step ``dt`` [s] with the held ``sound_speed``
+    [m/s]: the viscous number 2 d μ Δt² / (ρ Δx²) within ``viscous_safety`` times what the acoustic number
+    c Δt / Δx leaves of 1 (0 where it leaves nothing)."""
+    room = max(1.0 - sound_speed * dt / config.dx, 0.0)
+    return config.viscous_safety * room * density * config.dx ** 2 / (2 * config.dim * dt ** 2)
+
+
+def stable_baseline_start(problem: FitProblem, model: FitModel, steps: int = 40) -> None:
+    """Lower the corotated baseline's starting μ [Pa] to the stiffest one that the sound speed it sets itself
+    (``StirringSimulator.sound_speed``, then held through the fit) leaves stable at its step
+    (``baseline_shear_modulus_limit``), no lower than its bound; unchanged where its start is stable. A stiffer μ
+    raises the sound speed and so lowers the limit: the largest stable ln μ is found by bisection."""
+    def stable(log_mu: float) -> bool:
+        trial = FitModel.named("corotated", dt=model.dt, shear_modulus=math.exp(log_mu))
+        c = problem.simulator(trial.material).sound_speed(problem.trajectory)
+        return math.exp(log_mu) <= baseline_shear_modulus_limit(problem.config, problem.density, model.dt, c)
+
+    low, high = float(model.lower[0]), float(model.theta()[0])
+    if stable(high):
+        return
+    for _ in range(steps):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if stable(middle) else (low, middle)
+    model.set_theta(np.array([low]))
+
+
 def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations: int = 6, optimizer: str = "lm",
               learning_rate: float = 0.05, initial_jacobian: np.ndarray | None = None,
               initial_readings: np.ndarray | None = None, recompute_jacobian: bool | None = None,
@@ -260,15 +288,15 @@ def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations:
         on_iteration: called after each iteration with (model, iteration, loss [N], θ), e.g. to checkpoint.
     """
     start = time.perf_counter()
+    if model.is_baseline and problem.config.fixed_sound_speed is None:
+        stable_baseline_start(problem, model)
     if problem.config.fixed_sound_speed is None:  # one sound speed for the whole fit (``FitProblem.frozen``)
         problem = problem.frozen(model.material)
     cfg = problem.config
     if model.name == "newtonian":  # above the simulator's viscosity cap [Pa·s] the reading stops responding to η
         model.upper[0] = min(model.upper[0], math.log(cfg.viscosity_cap))
-    elif model.is_baseline:  # its apparent viscosity μ Δt must keep the fixed step stable: the viscous
-        # number 2 d μ Δt² / (ρ Δx²) within what the acoustic number c Δt / Δx leaves of 1
-        room = max(1.0 - cfg.fixed_sound_speed * model.dt / cfg.dx, 0.0)
-        mu_max = cfg.viscous_safety * room * problem.density * cfg.dx ** 2 / (2 * cfg.dim * model.dt ** 2)
+    elif model.is_baseline:
+        mu_max = baseline_shear_modulus_limit(cfg, problem.density, model.dt, cfg.fixed_sound_speed)
         model.upper[0] = min(model.upper[0], math.log(max(mu_max, 1e-12)))
     if sensor.fitted and optimizer != "lm":
         raise ValueError(f"fit.sensor_nuisance = {list(sensor.fitted)} needs fit.optimizer = lm (it is profiled out "
