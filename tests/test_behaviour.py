@@ -357,6 +357,15 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
         assert p.summary()["slice_factor"] == p.slice_factor
 
 
+def test_a_fluid_thicker_than_the_viscosity_cap_is_refused_naming_the_cap(lab_recordings):
+    """The 0.5 Pa·s fluid fitted by a simulator capped at 0.2 Pa·s: every window's Newtonian fit ends at the cap,
+    above which the reading no longer responds to η, so no window is resolved, and the refusal says why."""
+    refusal = r"\(recording@[^:]+: at the viscosity cap, .*\); raise sim.viscosity_cap \(0.2 Pa s\): the windows at it"
+    with pytest.raises(RecordingError, match=refusal):
+        characterise([lab_recordings["newtonian"]], config=FAST.replace(viscosity_cap=0.2),
+                     settings=BehaviourSettings(iterations=2, joint_models=[], replicates=50))
+
+
 def test_thinning_lab_fluid_and_the_joint_fit(lab_recordings, capsys):
     # the truth is FAST's own simulator, so its inertial force is exact here: σ_i, the 2.5 mm slice's error against
     # a finite-element reference, would be a per-window error this recording does not have (at 0.16 m/s on 1 cm

@@ -11,6 +11,7 @@ from test_behaviour import FAST, lab_fluid_recordings
 
 from diffstir.behaviour import BehaviourSettings, characterise, reclassify
 from diffstir.errors import ConfigError
+from diffstir.recording import RecordingError
 from diffstir.fitting import PROGRAMME_SIMULATIONS
 from diffstir.fitting.programme import BRACKET, MAX_RUNGS, MIN_SLOPE, Rungs, _probe_window
 
@@ -78,6 +79,16 @@ def test_a_newtonian_programme_reads_its_viscosity_at_every_window_and_is_newton
     summary = result.summary()
     assert summary["programmes"][0]["rungs"] == list(fit.rungs)
     assert reclassify(summary).label == "newtonian"
+
+
+def test_a_fluid_thicker_than_the_viscosity_cap_gets_no_rung_above_it_and_is_refused_naming_it(lab_recordings):
+    """The 0.5 Pa·s fluid read by a simulator capped at 0.2 Pa·s: above the cap every rung would read alike, so
+    none is simulated there (the ladder climbed to 1000 Pa·s and failed), each window is at the cap, and the
+    analysis refuses in one line that names the cap."""
+    capped = FAST.replace(viscosity_cap=0.2)
+    refusal = r"at the viscosity cap, .*\); raise sim.viscosity_cap \(0.2 Pa s\)"
+    with pytest.raises(RecordingError, match=refusal):
+        characterise([lab_recordings["newtonian"]], config=capped, workers=2, settings=BehaviourSettings(**SETTINGS))
 
 
 def test_the_flow_curve_analysis_classifies_and_fits_the_laws_to_the_points(lab_recordings):

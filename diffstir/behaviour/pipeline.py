@@ -131,9 +131,12 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
                 points = [p for recording_points in pool.map(jobs) for p in recording_points]
         used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
         if len({round(p.speed, 6) for p in used}) < 2:
+            advice = [f"raise sim.viscosity_cap ({config.viscosity_cap:g} Pa s): the windows at it read a fluid "
+                      "at least that thick"] if any(p.capped for p in points) else []
+            if any(_window_state(p, used) == "not resolved" for p in points) or not advice:
+                advice.insert(0, "stir faster or at more speeds")
             raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves (" + ", ".join(
-                f"{p.window.label}: {'ok' if any(p is q for q in used) else 'not resolved'}" for p in points)
-                + "); stir faster or at more speeds")
+                f"{p.window.label}: {_window_state(p, used)}" for p in points) + "); " + "; ".join(advice))
         k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
         rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
         result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used],
@@ -159,6 +162,13 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
             result = decide(result, index, test, settings.slope_test)
         tracker.close(f"{result.label} (confidence {result.confidence:.2f})")
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started, programmes)
+
+
+def _window_state(point, used: list) -> str:
+    """What became of a window's point in the classification: ok, or why it was left out."""
+    if any(point is q for q in used):
+        return "ok"
+    return "at the viscosity cap" if point.capped else "not resolved"
 
 
 def programme_fits(windows: list[list[SpeedWindow]], config: SimConfig, density: float,

@@ -52,6 +52,9 @@ from .windows import SpeedWindow
 #: flow index between 0 and 2.
 LADDER_FACTOR = 4.0
 
+#: A Newtonian fit within this of ln ``viscosity_cap`` [1] (0.1 % in η) ends at the cap, its upper bound.
+CAP_TOLERANCE = 1e-3
+
 
 @dataclass(frozen=True)
 class ViscosityPoint:
@@ -67,7 +70,9 @@ class ViscosityPoint:
             docstring); common to windows of similar Reynolds number.
         baseline: the sensor's baseline in the window [N] (a nuisance parameter, module docstring).
         resolvable: whether the reading's level lies above that of the lowest informative ladder probe (a thinner
-            fluid's drag is set by inertia, not viscosity).
+            fluid's drag is set by inertia, not viscosity), and the fit is below the simulator's viscosity cap.
+        capped: whether the Newtonian fit ends at the simulator's ``viscosity_cap`` [Pa·s], above which the reading
+            no longer responds to η: the fluid is at least that thick here, and the window is not resolvable.
         loss: the paper's loss of the Newtonian fit, mean |ΔF| [N].
         evaluations: forward simulations spent.
         slice_factor: the slice's correction C of the fitted fluid (``fitting.problem``: F = F' h C; None in 3-D).
@@ -84,6 +89,7 @@ class ViscosityPoint:
     loss: float
     evaluations: int
     slice_factor: float | None = None
+    capped: bool = False
 
     @property
     def metzner_otto(self) -> float:
@@ -107,7 +113,7 @@ class ViscosityPoint:
                 "metzner_otto": self.metzner_otto, "viscosity": self.viscosity,
                 "viscosity_ci95": list(self.ci95), "log_std": self.log_std,
                 "model_log_std": self.model_log_std, "baseline": self.baseline,
-                "resolvable": self.resolvable,
+                "resolvable": self.resolvable, "capped": self.capped,
                 "loss": self.loss, "evaluations": self.evaluations, "slice_factor": self.slice_factor,
                 "units": {"speed": "m/s", "measured_shear_rate": "1/s", "metzner_otto": "1", "viscosity": "Pa s",
                           "baseline": "N", "loss": "N"}}
@@ -149,7 +155,8 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
 
     if guess is None:
         ladder = ViscosityLadder.simulate(problem, on_evaluation=count)
-    else:
+    else:  # no thicker than the cap: the simulator holds none, and a capped window's guess may lie far above it
+        guess = min(guess, config.viscosity_cap)
         ladder = ViscosityLadder.simulate(problem, (guess / LADDER_FACTOR, guess * LADDER_FACTOR), on_evaluation=count)
     fit = fit_model(problem, FitModel.named("newtonian", eta=ladder.estimate(problem)), max_iterations=iterations,
                     on_evaluation=fit_evaluation)
@@ -161,12 +168,13 @@ def window_viscosity(window: SpeedWindow, config: SimConfig, density: float, *, 
         window.recording.sensor.resolution or 0.0, fit.simulated_readings[train],
         force_error(model_error, correction), inertial_error)
     eta = math.exp(log_eta)
-    rate = effective_shear_rate(problem, eta, on_evaluation=count)
+    capped = bool(fit.theta[0] >= math.log(config.viscosity_cap) - CAP_TOLERANCE)
+    rate = effective_shear_rate(problem, min(eta, config.viscosity_cap), on_evaluation=count)
     return ViscosityPoint(window=window, speed=window.speed, measured_shear_rate=rate, viscosity=eta,
                           log_std=log_std, model_log_std=model_log_std, baseline=baseline,
-                          resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))),
+                          resolvable=ladder.resolves(float(np.mean(np.abs(problem.measured)))) and not capped,
                           loss=fit.loss, evaluations=evaluations,
-                          slice_factor=None if correction is None else correction.factor)
+                          slice_factor=None if correction is None else correction.factor, capped=capped)
 
 
 @dataclass

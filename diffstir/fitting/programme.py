@@ -23,7 +23,8 @@ of a Newtonian fluid (a rung) reads every window at once, so the rungs form a la
    an inertial part), so the interpolation adds nothing the interval has to hold.
 
 A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
-is not ``resolvable``. A rung's fluid has one viscosity all through the programme, where a thinning fluid was
+is not ``resolvable``, nor is one read at the simulator's ``viscosity_cap`` or above it (``capped``: no rung is
+simulated above the cap, where every fluid reads alike, so such a fluid is at least that thick there). A rung's fluid has one viscosity all through the programme, where a thinning fluid was
 thicker during the slower speeds before a window: the window's flow carries that history (the bulk rotation the
 earlier speeds set up) only as far as a Newtonian fluid of its own apparent viscosity would, as in the window fits.
 Reading a flow curve's nodes jointly instead (a tabulated fluid through every window's point, simulated whole) is
@@ -40,7 +41,7 @@ import numpy as np
 
 from ..mpm import SimConfig
 from ..parallel import Workers
-from .apparent import ViscosityPoint, with_baseline
+from .apparent import CAP_TOLERANCE, ViscosityPoint, with_baseline
 from .initial import SHEAR_RATE_PROBES, metzner_otto_constant
 from .jobs import ReadingJob, mean_readings_on
 from .magnitude import expected_magnitude
@@ -138,27 +139,32 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
                  for eta in etas]
         return Rungs(etas, np.array(sizes))
 
-    rungs = simulate(list(START_VISCOSITIES))
+    cap = config.viscosity_cap  # Pa·s: no rung above it, where the simulator reads every fluid alike
+    start = sorted({min(eta, cap) for eta in START_VISCOSITIES})
+    rungs = simulate(start if len(start) > 1 else [cap / 10, cap])
     log_eta, slope, width = rungs.read(target)
     while np.max(width) > math.log(BRACKET) and len(readings) < MAX_RUNGS:
         new: list[float] = []
         for k in np.argsort(-width):
             if len(new) == min(slots, MAX_RUNGS - len(readings)) or width[k] <= math.log(BRACKET):
                 break
-            eta = _next_rung(rungs.viscosities, float(log_eta[k]))
-            if all(abs(math.log(eta / v)) > SAME_RUNG for v in new):
+            eta = min(_next_rung(rungs.viscosities, float(log_eta[k])), cap)
+            if all(abs(math.log(eta / v)) > SAME_RUNG for v in [*new, *rungs.viscosities]):
                 new.append(eta)
+        if not new:  # the widest brackets lie above the cap
+            break
         rungs = simulate(new)
         log_eta, slope, width = rungs.read(target)
-    probe = _probe_window(slope)
+    capped = log_eta >= math.log(cap) - CAP_TOLERANCE
+    probe = _probe_window(np.where(capped, 0.0, slope))
     window = windows[probe]
     probed = StirProblem(recording, config, density, Windows(window.start, window.end, window.end))
-    k_s = metzner_otto_constant(probed, float(np.exp(log_eta[probe])),
+    k_s = metzner_otto_constant(probed, min(float(np.exp(log_eta[probe])), cap),
                                 evaluate=lambda models: mean_readings_on(workers, stage, probed, models))
     simulations = len(readings) + SHEAR_RATE_PROBES
     points = []
     for k, window in enumerate(windows):
-        resolvable = slope[k] > MIN_SLOPE
+        resolvable = slope[k] > MIN_SLOPE and not capped[k]
         estimate = _waveform_estimate(readings, problem.measured[masks[k]], masks[k], float(log_eta[k]),
                                       recording.sensor.resolution or 0.0, model_error, inertial_error)
         x, log_std, model_log_std, baseline, p = estimate
@@ -167,7 +173,7 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
             viscosity=math.exp(x), log_std=log_std if resolvable else math.inf,
             model_log_std=model_log_std if resolvable else math.inf, baseline=baseline, resolvable=bool(resolvable),
             loss=float(np.mean(np.abs(problem.measured[masks[k]] - p))), evaluations=simulations,
-            slice_factor=_slice_factor(problem, math.exp(x))))
+            slice_factor=_slice_factor(problem, min(math.exp(x), cap)), capped=bool(capped[k])))
     return ProgrammeFit(points, k_s, tuple(float(v) for v in rungs.viscosities), simulations)
 
 
