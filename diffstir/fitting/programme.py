@@ -24,9 +24,10 @@ of a Newtonian fluid (a rung) reads every window at once, so the rungs form a la
 
 A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
 is not ``resolvable``, nor is one read at the simulator's ``viscosity_cap`` or above it (``capped``: no rung is
-simulated above the cap, where every fluid reads alike, so such a fluid is at least that thick there). A rung's fluid has one viscosity all through the programme, where a thinning fluid was
-thicker during the slower speeds before a window: the window's flow carries that history (the bulk rotation the
-earlier speeds set up) only as far as a Newtonian fluid of its own apparent viscosity would, as in the window fits.
+simulated above the cap, where every fluid reads alike, so such a fluid is at least that thick there). A rung's
+fluid has one viscosity all through the programme, where a thinning fluid was thicker during the slower speeds before
+a window: the window's flow carries that history (the bulk rotation the earlier speeds set up) only as far as a
+Newtonian fluid of its own apparent viscosity would, as in the window fits.
 Reading a flow curve's nodes jointly instead (a tabulated fluid through every window's point, simulated whole) is
 ill-posed: each window's drag averages η over a band of shear rates wider than the factor 2 between the planned
 speeds, so neighbouring nodes trade viscosity against each other (docs/flow-curve.md).
