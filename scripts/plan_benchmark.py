@@ -1,5 +1,5 @@
 """The planned stir against one speed: does the programme diffstir-plan designs name each fluid's family?
-(docs/planning.md, What a planned stir identifies)
+(docs/accuracy-plan.md, The benchmark)
 
 Fluids of every family, each stirred twice: with the default plan's programme for the paper's rig
 (``conf/lab/programme/paper_plan.yaml``, 8 s at 0.01-0.16 m/s) and with the one-speed default
@@ -18,11 +18,12 @@ The truth's family is the one its law shows over the plan's effective shear rate
 .true_class``). ``--refit`` fits the laws again to each planned case's stored points, the analysis's last step
 (``behaviour.flow_laws.laws_of_points``, no simulation), so a change in how the laws are fitted is measured on the
 same points. On one core a truth of the 8 s programme takes about 2-4 minutes, a planned analysis 4-10 and a
-one-speed one 6-15: the full table is a study of many hours, resumed by rerunning the same command. ``--truths DIR``
+one-speed one 6-16: the full table is a study of many hours, resumed by rerunning the same command. ``--truths DIR``
 keeps each truth simulation in DIR (``<fluid>_<programme>.npz``, with what made it) and reads it back instead of
 simulating it again; ``--jobs N`` runs N cases side by side, one process each (the truths they need first, N at a
 time), for a machine of many cores; ``--simulate-only`` makes the truths alone, and ``--merge`` gathers the rows of
-runs made elsewhere.
+runs made elsewhere. A case that fails (a refusal) is kept with its error and counted as not right; a rerun skips
+it as it skips the others.
 
     python scripts/plan_benchmark.py --out FILE.json [--fluids carreau_example ...] [--seeds 3] [--first-seed 0]
                                      [--programmes planned example] [--truths DIR]
@@ -318,7 +319,7 @@ def main() -> None:
             rows += [r for r in finished(path) if (r["fluid"], r["programme"], r["seed"]) not in done]
             done = {(r["fluid"], r["programme"], r["seed"]) for r in rows}
         for row in rows if args.refit else ():
-            if row["programme"] == "planned":
+            if row["programme"] == "planned" and row["class"] is not None:
                 refit(row)
         save(args.out, rows)
         print(table(rows))
@@ -329,13 +330,16 @@ def main() -> None:
     if args.jobs > 1:
         simulate_only(sorted({(f, k) for f, k, *_ in tasks}, key=pairs.index), args.truths, args.jobs)
     for (fluid_name, kind, seed, *_), row, error in in_pool(_attempt, tasks, args.jobs):
-        if row is None:
+        if row is None:  # kept, and counted as not right: a refusal names no family
+            row = {"fluid": fluid_name, "programme": kind, "seed": seed, "class": None, "error": error,
+                   "truth_class": truth_family(fluid_named(fluid_name).law, plan_band()), "right": False,
+                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"), "machine": machine()}
             print(f"{fluid_name} {kind} seed {seed}: failed: {error}", flush=True)
-            continue
+        else:
+            print(f"{fluid_name} {kind} seed {seed}: {row['class']} (truth {row['truth_class']}), "
+                  f"{row['seconds']:.0f} s", flush=True)
         rows.append(row)
         save(args.out, rows)
-        print(f"{fluid_name} {kind} seed {seed}: {row['class']} (truth {row['truth_class']}), {row['seconds']:.0f} s",
-              flush=True)
     print(table(rows))
 
 
@@ -370,7 +374,7 @@ def table(rows: list[dict]) -> str:
         cells = []
         for kind in ("planned", "example"):
             cases = [r for r in rows if r["fluid"] == fluid and r["programme"] == kind]
-            named = ", ".join(sorted({r["class"] for r in cases})) or "-"
+            named = ", ".join(sorted({r["class"] or "refused" for r in cases})) or "-"
             cells.append(f"{named} ({sum(r['right'] for r in cases)}/{len(cases)})" if cases else "-")
         family = next(r["truth_class"] for r in rows if r["fluid"] == fluid)
         lines.append(f"| {fluid} | {family} | {cells[0]} | {cells[1]} |")
@@ -378,7 +382,7 @@ def table(rows: list[dict]) -> str:
         cases = [r for r in rows if r["programme"] == kind]
         if cases:
             lines.append(f"\n{kind}: family right in {sum(r['right'] for r in cases)}/{len(cases)} cases")
-    points = [p for r in rows if r["programme"] == "planned" for p in r["points"]]
+    points = [p for r in rows if r["programme"] == "planned" for p in r.get("points", [])]
     if points:
         errors = [p["error"] for p in points]
         lines.append(f"planned: the truth's viscosity inside the windows' 95 % intervals "
