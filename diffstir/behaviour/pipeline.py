@@ -131,12 +131,14 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
                 points = [p for recording_points in pool.map(jobs) for p in recording_points]
         used = [p for p in points if p.resolvable and math.isfinite(p.log_std) and p.log_std > 0]
         if len({round(p.speed, 6) for p in used}) < 2:
-            advice = [f"raise sim.viscosity_cap ({config.viscosity_cap:g} Pa s): the windows at it read a fluid "
-                      "at least that thick"] if any(p.capped for p in points) else []
-            if any(_window_state(p, used) == "not resolved" for p in points) or not advice:
-                advice.insert(0, "stir faster or at more speeds")
+            states = [_window_state(p, used) for p in points]
+            capped = "at the viscosity cap" in states
+            advice = ["stir faster or at more speeds"] if "not resolved" in states or not capped else []
+            if capped:
+                advice.append(f"raise sim.viscosity_cap ({config.viscosity_cap:g} Pa s): the windows at it read a "
+                              "fluid at least that thick")
             raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves (" + ", ".join(
-                f"{p.window.label}: {_window_state(p, used)}" for p in points) + "); " + "; ".join(advice))
+                f"{p.window.label}: {state}" for p, state in zip(points, states)) + "); " + "; ".join(advice))
         k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))
         rates = np.array([k_s * p.speed / p.window.recording.rod.radius for p in used])
         result = classify(rates, [p.viscosity for p in used], [p.total_log_std for p in used],
