@@ -19,6 +19,12 @@ class OutputError(DiffstirError):
     """An output that would overwrite something recorded or shipped, or belongs to another input."""
 
 
+class SimulationError(DiffstirError, FloatingPointError):
+    """A simulation that became non-finite at the settings given; the message names the settings that would let it
+    run. A fit rejects such a trial step (it is a ``FloatingPointError``); where nothing simulates, the apps print
+    it as a user's error."""
+
+
 def is_number(value) -> bool:
     """Whether ``value`` is a finite int or float (a bool is not a number here)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

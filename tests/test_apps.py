@@ -86,6 +86,14 @@ def test_experiment_settings_missing_values_and_other_apps_are_refused_in_one_li
     assert not any(tmp_path.iterdir())
 
 
+def test_a_simulation_that_blows_up_is_one_line_naming_the_setting_and_leaves_no_empty_output_folder(tmp_path):
+    # an acoustic Courant number of 4: the explicit step is unstable from its first steps (stable below 1)
+    done = run("diffstir-simulate", "sim.cfl=4", "stir.duration=0.3", f"out={tmp_path / 'sim'}", cwd=tmp_path)
+    assert_refused(done, "diffstir-simulate", "the fluid became non-finite while settling")
+    assert "try a smaller sim.cfl" in done.stderr
+    assert not any(tmp_path.iterdir())
+
+
 RECORD = ["hardware/adc=emulated", "hardware/arm=replay", "hardware/gripper=emulated", "density.skip=true"]
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from diffstir.errors import OutputError
+from diffstir.errors import DiffstirError, OutputError, SimulationError
 from diffstir.fitting import FitSettings
 from diffstir.fitting.initial import (YIELD_SHARES, ViscosityLadder, effective_shear_rate, initial_models,
                                       newtonian_embedding)
@@ -89,6 +89,11 @@ def test_a_baseline_too_stiff_for_its_step_starts_from_the_stiffest_stable_one()
     soft = FitModel.named("corotated", dt=dt, shear_modulus=0.5 / dt)
     stable_baseline_start(problem, soft)
     assert soft.params_si()["shear_modulus"] == pytest.approx(0.5 / dt, rel=1e-6)
+    # at five times the acoustic step (c Δt / Δx = 5 cfl = 2) no μ is stable, down to the bound: a user's error
+    # naming what to change, which the optimiser would also reject as a blown-up step
+    with pytest.raises(SimulationError, match=r"corotated: no shear modulus .*\(baseline=false\)") as refused:
+        stable_baseline_start(problem, FitModel.named("corotated", dt=5 * dt, shear_modulus=0.5 / dt))
+    assert isinstance(refused.value, DiffstirError) and isinstance(refused.value, FloatingPointError)
 
 
 def test_a_recorded_path_is_replayed_along_the_smooth_curve_through_its_samples():

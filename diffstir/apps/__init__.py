@@ -1,9 +1,10 @@
 """Command-line applications; the only modules that import Hydra.
 
 Every app runs through ``command``: it prints its own help page for ``-h``/``--help``, turns the project's errors
-(``DiffstirError``: a recording, a setting, an output folder) into one line on stderr and exit status 2
-(``HYDRA_FULL_ERROR=1`` re-raises them with the full traceback), and turns SIGINT and SIGTERM into one line and exit
-status 128 + the signal's number (130, 143), keeping what the run has written. Exit status 0: done.
+(``DiffstirError``: a recording, a setting, an output folder, a simulation those settings cannot run) into one line
+on stderr and exit status 2, removing an output folder it made and left empty (``HYDRA_FULL_ERROR=1`` re-raises
+them with the full traceback), and turns SIGINT and SIGTERM into one line and exit status 128 + the signal's number
+(130, 143), keeping what the run has written. Exit status 0: done.
 """
 
 from __future__ import annotations
@@ -102,14 +103,22 @@ class Run:
 
     out: Path | None = None
     kept: tuple[str, ...] = ()
+    made: bool = False
 
     @classmethod
     def writes(cls, out: Path, *kept: str) -> Path:
         """Make the output folder ``out`` (after the run's inputs passed their checks) and name the files in it
         that an interrupted run keeps; returns ``out``."""
+        cls.made = not out.exists()
         out.mkdir(parents=True, exist_ok=True)
         cls.out, cls.kept = out, kept
         return out
+
+    @classmethod
+    def discard_empty(cls) -> None:
+        """Remove the output folder this run made if nothing was written into it (a run refused midway)."""
+        if cls.made and cls.out is not None and cls.out.is_dir() and not any(cls.out.iterdir()):
+            cls.out.rmdir()
 
     @classmethod
     def kept_line(cls) -> str:
@@ -183,6 +192,7 @@ def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], Non
                 if os.environ.get("HYDRA_FULL_ERROR") == "1":
                     raise
                 print(f"{name}: error: {one_line(error)}", file=sys.stderr, flush=True)
+                Run.discard_empty()
                 sys.exit(2)
             finally:
                 _remove_empty_run_dir()
@@ -193,7 +203,7 @@ def command(name: str, config_name: str) -> Callable[[Callable[[DictConfig], Non
             if any(arg in ("-h", "--help") for arg in sys.argv[1:]):
                 print(help_page(name, config_name, task.__module__))
                 return
-            Run.out, Run.kept = None, ()
+            Run.out, Run.kept, Run.made = None, (), False
             check_overrides(name, config_name, sys.argv[1:])
             if not OmegaConf.has_resolver("run_folder"):
                 OmegaConf.register_new_resolver("run_folder", run_folder)

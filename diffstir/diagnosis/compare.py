@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
+from ..errors import SimulationError
 from ..fitting import Readings, bic, bic_of_rss, effective_samples, fit_model, laplace, parameter_uncertainty
 from ..parallel import Workers
 from .base import residual_test, simulated_reading
@@ -305,7 +306,8 @@ def screened_start(readings: Callable[[np.ndarray], np.ndarray], starts: list[np
         if rest @ rest < best_rss:
             best, best_rss = np.concatenate([[log_scale], theta[1:]]), float(rest @ rest)
     if best is None:
-        raise FloatingPointError("diagnose: no start of the candidate simulates")
+        raise SimulationError("diagnose: no start of the physics candidate simulates (each became non-finite or "
+                              "read no force); try a smaller sim.cfl or sim.viscous_safety")
     return best
 
 

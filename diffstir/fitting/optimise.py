@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from scipy import optimize
 
+from ..errors import SimulationError
 from ..mpm import SimConfig
 from .models import FitModel
 from .nuisance import NO_NUISANCE, SensorNuisance, lag_response
@@ -247,7 +248,8 @@ def stable_baseline_start(problem: FitProblem, model: FitModel, steps: int = 40)
     """Lower the corotated baseline's starting μ [Pa] to the stiffest one that the sound speed it sets itself
     (``StirringSimulator.sound_speed``, then held through the fit) leaves stable at its step
     (``baseline_shear_modulus_limit``), no lower than its bound; unchanged where its start is stable. A stiffer μ
-    raises the sound speed and so lowers the limit: the largest stable ln μ is found by bisection."""
+    raises the sound speed and so lowers the limit: the largest stable ln μ is found by bisection. SimulationError
+    where even the bound is unstable."""
     def stable(log_mu: float) -> bool:
         trial = FitModel.named("corotated", dt=model.dt, shear_modulus=math.exp(log_mu))
         c = problem.simulator(trial.material).sound_speed(problem.trajectory)
@@ -256,6 +258,11 @@ def stable_baseline_start(problem: FitProblem, model: FitModel, steps: int = 40)
     low, high = float(model.lower[0]), float(model.theta()[0])
     if stable(high):
         return
+    if not stable(low):
+        raise SimulationError(
+            f"corotated: no shear modulus down to its bound {math.exp(low):.3g} Pa is stable at the baseline's "
+            f"step dt = {model.dt:.3g} s on sim.dx = {problem.config.dx} m; fit without the baseline "
+            "(baseline=false) or with a smaller sim.cfl")
     for _ in range(steps):
         middle = 0.5 * (low + high)
         low, high = (middle, high) if stable(middle) else (low, middle)
@@ -326,7 +333,7 @@ def fit_model(problem: FitProblem, model: MaterialParameters, *, max_iterations:
 
     theta0 = np.clip(model.theta(), model.lower, model.upper)
     if not np.isfinite(readings(theta0)).all():
-        raise FloatingPointError(f"{model.name}: the fit's starting point does not simulate: {readings.failures[-1]}")
+        raise SimulationError(f"{model.name}: the fit's starting point does not simulate: {readings.failures[-1]}")
     if optimizer == "lm":
         scale = residual_scale(weights * (reading(theta0)[0][train] - measured),
                                noise_scale(problem.measured, problem.recording.sensor.resolution))

@@ -12,6 +12,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ..errors import SimulationError
 from ..rig import Rig
 from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, is_solid, rod_sdf, rod_shape
 from .config import SimConfig
@@ -160,7 +161,7 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
             state.v = state.v * damping
             state.C = state.C * damping
             if not (torch.isfinite(state.x).all() and torch.isfinite(state.J).all()):  # and nothing is cached
-                raise FloatingPointError(f"the fluid became non-finite while settling, at step {k} of dt = {dt:.3g} "
+                raise SimulationError(f"the fluid became non-finite while settling, at step {k} of dt = {dt:.3g} "
                                          f"s (sim.dx = {config.dx} m, sim.sound_speed = {config.sound_speed} m/s, "
                                          f"sim.cfl = {config.cfl}); try a smaller sim.cfl")
     settled = State(x=state.x, v=torch.zeros_like(state.v), C=torch.zeros_like(state.C), J=state.J)

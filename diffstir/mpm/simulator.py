@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..errors import SimulationError
 from ..rig import Rig
 from ..trajectory import Trajectory
 from .boundaries import RodPose
@@ -250,7 +251,7 @@ class StirringSimulator(nn.Module):
         law = getattr(self.material, "law", self.material)
         params = law.parameters_si() if hasattr(law, "parameters_si") else {
             n: float(p.detach().reshape(-1)[0]) for n, p in law.named_parameters()}
-        raise FloatingPointError(
+        raise SimulationError(
             f"the simulation became non-finite at step {k} (t = {k * dt:.4g} s, dt = {dt:.3g} s) with "
             f"{type(law).__name__} parameters {params}; try a smaller sim.cfl or sim.viscous_safety"
         )
