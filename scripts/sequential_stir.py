@@ -29,13 +29,14 @@ from diffstir.lab import stirring_programme
 from diffstir.lab.synth import read_truth, simulate_truth
 from diffstir.planning import PlanSettings, Prior
 from diffstir.planning.calibration import SHIPPED, Calibration
-from diffstir.planning.sequential import StirSoFar, next_segment
+from diffstir.planning.sequential import FIRST_SPEEDS, StirSoFar, first_stir, next_segment
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fluid", choices=list(FLUIDS), required=True)
-    parser.add_argument("--first", type=float, nargs="+", default=[0.02, 0.08], help="the first stir's speeds [m/s]")
+    parser.add_argument("--first", type=float, nargs="+", default=list(FIRST_SPEEDS),
+                        help="the first stir's speeds [m/s]")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, required=True, help="JSON of the steps")
@@ -44,10 +45,7 @@ def main() -> None:
     settings, prior = PlanSettings(), Prior()
     calibration = Calibration.from_dict(json.loads(next(SHIPPED.glob("calibration-*.json")).read_text()))
     fluid = fluid_named(args.fluid)
-    duration = settings.budget / settings.max_segments
-    ramp = settings.arm.ramp_time(max(args.first), settings.min_ramp)
-    programme = {"radius": settings.radius, "ramp_time": ramp, "start_angle": 0.0,
-                 "segments": [{"speed": u, "duration": duration / 2} for u in args.first]}
+    programme = first_stir(settings, tuple(args.first))
     steps, recordings = [], []
     while True:
         started = time.perf_counter()

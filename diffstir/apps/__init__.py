@@ -250,9 +250,15 @@ def check_overrides(name: str, config_name: str, args: list[str]) -> None:
 
 def help_page(name: str, config_name: str, module: str) -> str:
     """``name --help``: a usage line, the app's examples (its module docstring), its options with their comments
-    (``conf/<config_name>.yaml``) and the options of the config groups it composes."""
+    (``conf/<config_name>.yaml``, and the default of a config group that it merges at its top level, ``# @package
+    _global_``) and the options of the config groups it composes."""
     text = (Path(CONF_DIR) / f"{config_name}.yaml").read_text(encoding="utf-8")
     options = re.sub(r"^  - override hydra/.*\n", "", text.split("\nhydra:")[0], flags=re.M).rstrip()
+    for group, option in re.findall(r"^  - (\w+): (\w+)", text, flags=re.M):
+        merged = Path(CONF_DIR) / group / f"{option}.yaml"
+        body = merged.read_text(encoding="utf-8") if merged.is_file() else ""
+        if body.startswith("# @package _global_\n"):
+            options += f"\n\n# conf/{group}/{option}.yaml:\n" + body.split("\n", 1)[1].rstrip()
     groups = []
     for line in re.findall(r"^  - (?!_self_|override )(\S+?):", text, flags=re.M):
         group, _, package = line.partition("@")

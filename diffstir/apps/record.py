@@ -5,27 +5,43 @@
         calibration=calib/rp-c18-0042.yaml fluid="castor oil" interactive=true
     diffstir-record hardware/adc=emulated hardware/arm=replay hardware/gripper=emulated \\
         density.rod_weight=0.5 density.immersed_reading=0.11 out=/tmp/runs stir.duration=3
+    diffstir-record sequential.enabled=true calibration=calib/rp-c18-0042.yaml ...   # stir until decided
+
+With ``sequential.enabled``, the sequential mode (docs/planning.md): the first stir at ``sequential.first``, then
+after each stir the flow-curve analysis of every stir so far (``analysis-<k>/``, as ``diffstir-fit
+experiment=flow_curve`` writes it, with ``next.json`` as ``diffstir-plan after=`` writes it) and the next stir it
+calls for (``stir-<k+1>/``), until the fluid's family is decided or ``plan.budget`` is spent; the rod rests while
+each analysis runs. session.yaml's ``sequence`` lists each step's stir and decision.
 
 Configs: conf/record.yaml and conf/hardware/{adc,arm,gripper}/. Exit status: 0 done, 1 a device's error, 2 a setting
-refused, 130 / 143 interrupted (SIGINT / SIGTERM; everything recorded so far is kept, partial recordings marked
-complete: false).
+refused (or, in the sequential mode, an analysis that resolves no viscosity), 130 / 143 interrupted (SIGINT /
+SIGTERM; everything recorded so far is kept, partial recordings marked complete: false).
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import sys
 from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from diffstir.apps import Run, command
+from diffstir.apps import Run, check_processes, command, config_workers
+from diffstir.apps.plan import CalibrationProgress, plan_inputs
+from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.errors import ConfigError, DiffstirError
 from diffstir.hardware import DensitySettings, HardwareError, Session, StirSettings, load_calibration, load_trajectory
-from diffstir.recording import CupGeometry, RodGeometry, SensorSpec
+from diffstir.lab import stirring_programme
+from diffstir.planning import rig_calibration
+from diffstir.planning.result import PATH_RATE
+from diffstir.planning.sequential import NextSegment, StirSoFar, first_stir, next_segment
+from diffstir.recording import CupGeometry, RodGeometry, SensorSpec, load_recording
 from diffstir.trajectory import Trajectory, circle
 
 DENSITY_FIELDS = {"rod_weight": "N", "immersed_reading": "N", "immersed_depth": "m"}
@@ -74,6 +90,77 @@ def _ask_missing(values: dict) -> dict:
     return values
 
 
+def programme_path(programme: dict) -> Trajectory:
+    """The rod's path [m] of a ``conf/lab/programme`` mapping, sampled as diffstir-plan's stir_path.csv is."""
+    return stirring_programme(programme["segments"], radius=programme["radius"], ramp_time=programme["ramp_time"],
+                              start_angle=programme.get("start_angle", 0.0), sample_rate=PATH_RATE)
+
+
+def stir_sequentially(session: Session, first: dict, analyse: Callable[[list[Path], Path], StirSoFar],
+                      next_stir: Callable[[StirSoFar], NextSegment]) -> list[dict]:
+    """Stir ``first`` (a programme mapping), then, after each stir k, ``analyse`` every stir so far into
+    ``analysis-<k>/`` and stir the programme that ``next_stir`` calls for, until it calls for none (the family is
+    decided, or no stir fits the budget left). Each stir starts where the last one left the rod, so that the arm
+    does not drag it through the resting fluid to a start pose. Each step (its stir, the stir so far, the decision)
+    goes into session.yaml's ``sequence`` as it is taken; returns the steps."""
+    programme, recordings, steps = first, [], []
+    while programme is not None:
+        name = f"stir-{len(recordings) + 1}"
+        path = programme_path(programme)
+        recordings.append(session.stir(path, name=name))
+        out = session.path / f"analysis-{len(recordings)}"
+        so_far = analyse(recordings, out)
+        step = next_stir(so_far)
+        decision = json.loads(json.dumps({**step.to_dict(), "elapsed": so_far.elapsed}, default=float))
+        (out / "next.json").write_text(json.dumps(decision, indent=2) + "\n")
+        steps.append({"stir": name, "programme": programme, "analysis": out.name, **decision})
+        session.annotate("sequence", steps)
+        state = f"decided: {step.family}" if step.decided else f"so far {step.family or 'no family'}"
+        then = ("" if step.decided else f"; next {step.speed:g} m/s for {step.duration:.3g} s"
+                if step.speed is not None else "; no stir fits the budget left")
+        speeds = ", ".join(f"{segment['speed']:g}" for segment in programme["segments"])
+        print(f"{name}: {speeds} m/s; after {so_far.elapsed:.3g} s {state} (confidence {step.confidence:.3g})"
+              f"{then}", flush=True)
+        end = math.atan2(path.xy[-1, 1], path.xy[-1, 0])
+        programme = None if step.speed is None else {**step.programme(programme["radius"]), "start_angle": end}
+    return steps
+
+
+def sequential_planner(cfg: DictConfig) -> tuple[dict, Callable, Callable]:
+    """The sequential mode's first stir, its analysis and its next stir (``stir_sequentially``), from ``cfg``'s
+    ``sim``, ``prior``, ``plan`` and ``sequential`` blocks, checked (and the rig calibrated) before any device
+    opens."""
+    check_processes(cfg)
+    if cfg.stir.file:
+        raise ConfigError("stir.file: the sequential mode plans its own stirs; give stir.file=null or "
+                          "sequential.enabled=false")
+    if cfg.dry_run.mode == "profile":
+        raise ConfigError("dry_run.mode = 'profile' runs one programme in air, and the sequential mode's stirs are "
+                          "planned as it goes; use dry_run.mode=mean")
+    rig, sim_config, prior, settings = plan_inputs(cfg)
+    speeds = tuple(cfg.sequential.first)
+    if len(speeds) < 2 or not all(isinstance(u, (int, float)) and 0 < u <= settings.arm.max_speed for u in speeds):
+        raise ConfigError(f"sequential.first = {list(speeds)} m/s; expected two or more speeds in (0, "
+                          f"{settings.arm.max_speed}] m/s (plan.arm.max_speed)")
+    workers = config_workers(cfg)
+    with CalibrationProgress() as progress:
+        calibration = rig_calibration(rig, prior, settings, sim_config, workers=workers, cache_dir=cfg.cache_dir,
+                                      report=progress)
+
+    def analyse(recordings: list[Path], out: Path) -> StirSoFar:
+        result = characterise([load_recording(r) for r in recordings], config=sim_config,
+                              settings=BehaviourSettings(analysis="flow_curve"), density=settings.density,
+                              workers=workers, progress=True)
+        result.write(out)
+        so_far = StirSoFar.from_report(result.summary())
+        if not so_far.speeds:
+            raise DiffstirError(f"{out / 'report.json'}: no window of the stirs so far resolved a viscosity "
+                                "(docs/flow-curve.md); the sequential mode has nothing to plan from")
+        return so_far
+
+    return first_stir(settings, speeds), analyse, lambda so_far: next_segment(so_far, calibration, prior, settings)
+
+
 def record(cfg: DictConfig) -> Session:
     """Run the session ``cfg`` describes; returns it (its ``path`` holds everything recorded). The ``sensor``,
     ``grip``, ``dry_run``, ``density`` and ``stir`` blocks are built on their schemas (``diffstir.hardware.settings``,
@@ -86,7 +173,8 @@ def record(cfg: DictConfig) -> Session:
     rig = instantiate(cfg.rig)
     if rig.rod.mesh is not None:
         raise ConfigError("rig.rod.mesh: a recording's rod is a cylinder; record with rig.rod.mesh=null")
-    stir = _programme(stir_settings)
+    sequential = sequential_planner(cfg) if cfg.sequential.enabled else None
+    stir = _programme(stir_settings) if sequential is None else programme_path(sequential[0])
     dry = _dry_programme(stir, dry_run.mode, dry_run.duration, dry_run.lift)
 
     def step(message: str) -> None:
@@ -125,7 +213,10 @@ def record(cfg: DictConfig) -> Session:
                     step("Density: weigh the rod held vertical in air (G), then immersed at rest (R).")
                 session.measure_density(**_ask_missing(density))
             step("Stir: the cup must be in place; the rod goes to its immersed start pose and stirs.")
-            session.stir(stir)
+            if sequential is None:
+                session.stir(stir)
+            else:
+                stir_sequentially(session, *sequential)
     return session
 
 
@@ -140,8 +231,10 @@ def main(cfg: DictConfig) -> None:
         print(f"diffstir-record: {exc}", file=sys.stderr)
         sys.exit(1)
     steps = session.meta["steps"]
-    print(f"done: {session.path}: {steps['stir'].get('rows', 0)} rows, "
-          f"{steps['stir'].get('skipped_lines', 0)} bad sensor lines skipped", flush=True)
+    stirs = [name for name in steps if name == "stir" or name.startswith("stir-")]
+    print(f"done: {session.path}: {len(stirs)} stir{'s' if len(stirs) > 1 else ''}, "
+          f"{sum(steps[s].get('rows', 0) for s in stirs)} rows, "
+          f"{sum(steps[s].get('skipped_lines', 0) for s in stirs)} bad sensor lines skipped", flush=True)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,9 @@ session.yaml points at the session it resumes, whose directory is only read.
       stir-poses.csv     every pose of the stir (as above)
       stir/              the recording (diffstir-recording/1): t, x, y, force, z, raw
 
+A session of several stirs (``diffstir-record``'s sequential mode) names each: ``stir-1-adc.csv``,
+``stir-1-poses.csv``, ``stir-1/`` and so on.
+
 The stir table: ``t`` is the sensor's clock, zero at the first row. Each sample's host time h comes from the
 clock alignment (``ClockAligner``); the rod's pose is interpolated linearly at h; the programme time is
 tau = h - (host time of the arm's first pose); force = a G(counts) + b - baseline(tau) (``Calibration``,
@@ -301,8 +304,12 @@ class Session:
                         density=(rod_weight - immersed_reading) / (area * immersed_depth * GRAVITY))
         return self.density
 
-    def stir(self, trajectory: Trajectory) -> Path:
-        """Stir along ``trajectory``, writing the recording as samples arrive; returns its directory."""
+    def stir(self, trajectory: Trajectory, name: str = "stir") -> Path:
+        """Stir along ``trajectory``, writing the recording as samples arrive; returns its directory. ``name`` names
+        the step, its files (``<name>-adc.csv``, ``<name>-poses.csv``) and the recording's directory, so that a
+        session holds several stirs; a recording other than ``stir`` is labelled ``<session>-<name>``."""
+        if name in self.meta["steps"] or not re.fullmatch(r"[a-z][a-z0-9-]*", name):
+            raise ValueError(f"Session.stir: name {name!r} is taken or not a lower-case word (a-z, 0-9, -)")
         if trajectory.max_offset() + self.rod.radius >= self.cup.radius:
             raise ValueError(f"the trajectory takes the rod's axis {trajectory.max_offset():.4f} m off the cup's "
                              f"axis; with a rod of radius {self.rod.radius} m it would hit the wall at "
@@ -310,10 +317,11 @@ class Session:
         if self.baseline is None:
             warnings.warn("stirring without a dry run: the force keeps the grip preload and sensor offset",
                           HardwareWarning, stacklevel=2)
-        with self._step("stir") as step, \
-                _Log(self.path / "stir-adc.csv", ["t_device", "t_host", "raw"], self.flush_interval) as adc_log, \
-                _Log(self.path / "stir-poses.csv", ["t_host", "x", "y", "z"], self.flush_interval) as pose_log:
-            step["recording"] = "stir"
+        with self._step(name) as step, \
+                _Log(self.path / f"{name}-adc.csv", ["t_device", "t_host", "raw"], self.flush_interval) as adc_log, \
+                _Log(self.path / f"{name}-poses.csv", ["t_host", "x", "y", "z"], self.flush_interval) as pose_log:
+            step["recording"] = name
+            label = self.path.name if name == "stir" else f"{self.path.name}-{name}"
             writer = None
             origin = []
             saturated = 0
@@ -329,8 +337,8 @@ class Session:
                 if self.sensor.one_sided:
                     force = max(0.0, force)
                 if writer is None:
-                    writer = RecordingWriter(self.path / "stir", cup=self.cup, rod=self.rod, sensor=self.sensor,
-                                             density=self.density, name=self.path.name, fluid=self.fluid,
+                    writer = RecordingWriter(self.path / name, cup=self.cup, rod=self.rod, sensor=self.sensor,
+                                             density=self.density, name=label, fluid=self.fluid,
                                              temperature=self.temperature, optional_columns=("z", "raw"),
                                              flush_interval=self.flush_interval)
                     origin.append(sample.t_device)
@@ -349,7 +357,12 @@ class Session:
                                     f"of the {self.arm.name}; are both clocks monotonic?")
             writer.close()
             step.update(rows=writer.rows_written, saturated=saturated, **stats)
-        return self.path / "stir"
+        return self.path / name
+
+    def annotate(self, key: str, value) -> None:
+        """Keep ``value`` (plain data) under ``key`` in session.yaml, e.g. the sequential mode's decisions."""
+        self.meta[key] = value
+        self._save()
 
     def _check_grip(self) -> None:
         if self.gripper is not None and self.gripper.status().grip is GripState.DROPPED:

@@ -46,6 +46,18 @@ from .prior import Prior
 #: Schwarz weight [1] of the leading family at which the stir is decided: a rival family ~10 behind in BIC.
 DECIDED = 0.99
 
+#: The first stir's speeds [m/s]: a factor 4 apart, so that the flow-curve analysis has two resolved speeds.
+FIRST_SPEEDS = (0.02, 0.08)
+
+
+def first_stir(settings: PlanSettings, speeds: tuple[float, ...] = FIRST_SPEEDS) -> dict:
+    """The sequential mode's first stir as a ``conf/lab/programme`` mapping: ``speeds`` [m/s] from rest, each for
+    an equal share of one plan segment (``budget`` / ``max_segments``) on ``settings``' circle, ramped as the
+    arm allows for the fastest."""
+    segment = settings.budget / settings.max_segments
+    return {"radius": settings.radius, "ramp_time": settings.arm.ramp_time(max(speeds), settings.min_ramp),
+            "start_angle": 0.0, "segments": [{"speed": u, "duration": segment / len(speeds)} for u in speeds]}
+
 
 @dataclass(frozen=True)
 class StirSoFar:
