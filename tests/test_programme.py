@@ -10,6 +10,7 @@ import pytest
 from test_behaviour import FAST, lab_fluid_recordings
 
 from diffstir.behaviour import BehaviourSettings, characterise, reclassify
+from diffstir.behaviour.report import markdown
 from diffstir.errors import ConfigError
 from diffstir.recording import RecordingError
 from diffstir.fitting import PROGRAMME_SIMULATIONS
@@ -79,6 +80,13 @@ def test_a_newtonian_programme_reads_its_viscosity_at_every_window_and_is_newton
     summary = result.summary()
     assert summary["programmes"][0]["rungs"] == list(fit.rungs)
     assert reclassify(summary).label == "newtonian"
+    # report.md says of each window whether it is classified, and why not
+    rows = [line for line in markdown(summary).splitlines() if line.startswith("| ") and "@" in line]
+    assert len(rows) == len(fit.points) and all(row.endswith("| yes |") for row in rows)
+    summary["points"][0].update(classified=False, capped=True)
+    summary["points"][1].update(classified=False, capped=False)
+    rows = [line for line in markdown(summary).splitlines() if line.startswith("| ") and "@" in line]
+    assert rows[0].endswith("| no: at the viscosity cap |") and rows[1].endswith("| no: not resolved |")
 
 
 def test_a_fluid_thicker_than_the_viscosity_cap_gets_no_rung_above_it_and_is_refused_naming_it(lab_recordings):

@@ -54,7 +54,7 @@ def markdown(summary: dict) -> str:
     for p in summary["points"]:
         lines.append(f"| {p['window']} | {p['speed']:.4g} | {p['shear_rate']:.3g} ({p['measured_shear_rate']:.3g}) | "
                      f"{p['viscosity']:.4g} ({p['viscosity_ci95'][0]:.4g}-{p['viscosity_ci95'][1]:.4g}) | "
-                     f"{p['classified']} |")
+                     f"{_classified(p)} |")
     joint = summary["joint_fit"]
     if joint:
         points = joint.get("fitted_to") == "points"
@@ -66,6 +66,14 @@ def markdown(summary: dict) -> str:
             misfit = f"{law['chi2']:.3g}" if points else f"{law['loss']:.4g}"
             lines.append(f"| {name} | {misfit} | {law['bic']:.1f} | {params} |")
     return "\n".join(lines) + "\n"
+
+
+def _classified(point: dict) -> str:
+    """Whether a window's point is classified, and why not: read at the simulator's viscosity cap (at least that
+    thick), or not resolved by the sensor."""
+    if point["classified"]:
+        return "yes"
+    return "no: at the viscosity cap" if point.get("capped") else "no: not resolved"
 
 
 def plot_all(result, out: Path) -> dict[str, Path]:
