@@ -22,11 +22,12 @@ one-speed one 6-16: the full table is a study of many hours, resumed by rerunnin
 keeps each truth simulation in DIR (``<fluid>_<programme>.npz``, with what made it) and reads it back instead of
 simulating it again; ``--jobs N`` runs N cases side by side, one process each (the truths they need first, N at a
 time), for a machine of many cores; ``--simulate-only`` makes the truths alone, and ``--merge`` gathers the rows of
-runs made elsewhere. A case that fails (a refusal) is kept with its error and counted as not right; a rerun skips
-it as it skips the others.
+runs made elsewhere. ``--planned`` benchmarks another plan's programme (``diffstir-plan out=DIR``'s
+``DIR/lab/programme/planned.yaml``); give it its own ``--truths`` folder. A case that fails (a refusal) is kept with
+its error and counted as not right; a rerun skips it as it skips the others.
 
     python scripts/plan_benchmark.py --out FILE.json [--fluids carreau_example ...] [--seeds 3] [--first-seed 0]
-                                     [--programmes planned example] [--truths DIR]
+                                     [--programmes planned example] [--truths DIR] [--planned PLAN.yaml]
     python scripts/plan_benchmark.py --truths DIR --simulate-only [--jobs 6] [--fluids bingham ...] [--programmes ...]
     python scripts/plan_benchmark.py --out FILE.json --merge OTHER.json ... [--refit]
     python scripts/plan_benchmark.py --out FILE.json --refit
@@ -80,8 +81,15 @@ FLUIDS = {
 }
 
 
-#: The programme presets (conf/lab/programme/) of the two kinds of case.
-PROGRAMMES = {"planned": "paper_plan", "example": "example"}
+#: The programmes (``conf/lab/programme`` files) of the two kinds of case; ``--planned`` replaces the planned one.
+PROGRAMMES = {"planned": CONF / "lab" / "programme" / "paper_plan.yaml",
+              "example": CONF / "lab" / "programme" / "example.yaml"}
+
+
+def use_planned(path: Path) -> None:
+    """Make ``path`` (a ``lab/programme`` file, such as ``diffstir-plan``'s ``lab/programme/planned.yaml``) the
+    planned cases' programme in this process; a pool's processes run it first (``in_pool``)."""
+    PROGRAMMES["planned"] = path
 
 
 def fluid_named(name: str) -> Fluid:
@@ -106,9 +114,9 @@ def truth_family(law: dict, band: tuple[float, float]) -> str:
     return true_class(law, band)
 
 
-def programme(name: str) -> tuple[dict, object]:
-    """The programme preset ``conf/lab/programme/<name>.yaml`` and its trajectory."""
-    spec = yaml.safe_load((CONF / "lab" / "programme" / f"{name}.yaml").read_text())
+def programme(path: Path) -> tuple[dict, object]:
+    """The programme of the ``conf/lab/programme`` file ``path`` and its trajectory."""
+    spec = yaml.safe_load(path.read_text())
     return spec, stirring_programme(spec["segments"], radius=spec["radius"], ramp_time=spec["ramp_time"],
                                     start_angle=spec.get("start_angle", 0.0))
 
@@ -174,7 +182,8 @@ def machine() -> str:
 
 
 def plan_band() -> tuple[float, float]:
-    """The least and greatest effective shear rate [1/s] of the default plan's speeds (the shipped calibration)."""
+    """The least and greatest effective shear rate [1/s] of the planned programme's speeds (the shipped
+    calibration's k_s)."""
     spec, _ = programme(PROGRAMMES["planned"])
     calibration = Calibration.from_dict(json.loads(next(SHIPPED.glob("calibration-*.json")).read_text()))
     rates = sorted(calibration.shear_rate(s["speed"]) for s in spec["segments"])
@@ -236,6 +245,7 @@ def case_row(fluid_name: str, kind: str, seed: int, workers: int, store: Path | 
     case = planned_case(recording, sim("sim/slice2d.yaml"), workers) if kind == "planned" else single_case(
         recording, workers)
     row = {"fluid": fluid_name, "programme": kind, "seed": seed, "truth_class": family,
+           "segments": programme(PROGRAMMES[kind])[0]["segments"],
            "right": case["class"] == family, "truth_law": fluid.law, "truth_seconds": truth_seconds, **case,
            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"), "machine": machine()}
     if kind == "planned":
@@ -262,12 +272,13 @@ def _make_truth(task: tuple) -> str:
 
 def in_pool(function, tasks: list, jobs: int):
     """``function`` of each task as it finishes: in this process when ``jobs`` is 1, else ``jobs`` processes
-    side by side, ended with this one (SIGTERM exits 143)."""
+    side by side, ended with this one (SIGTERM exits 143), each on this process's planned programme."""
     if jobs <= 1:
         yield from map(function, tasks)
         return
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    pool = multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1)
+    pool = multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1, initializer=use_planned,
+                                                     initargs=(PROGRAMMES["planned"],))
     try:
         yield from pool.imap_unordered(function, tasks)
     finally:
@@ -292,6 +303,9 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=0, help="the seeds are FIRST_SEED .. FIRST_SEED+SEEDS-1")
     parser.add_argument("--programmes", nargs="+", choices=list(PROGRAMMES), default=list(PROGRAMMES),
                         help="planned: the default plan's; example: the one-speed default")
+    parser.add_argument("--planned", type=Path, default=PROGRAMMES["planned"],
+                        help="the planned cases' programme: a lab/programme file, such as diffstir-plan's "
+                             "OUT/lab/programme/planned.yaml (default: the default plan's)")
     parser.add_argument("--workers", type=int, default=2, help="processes of one analysis (1 with --jobs > 1)")
     parser.add_argument("--jobs", type=int, default=1, help="cases (or truths) run side by side")
     parser.add_argument("--truths", type=Path, help="folder of stored truth simulations, read and added to")
@@ -301,6 +315,7 @@ def main() -> None:
     parser.add_argument("--merge", nargs="+", type=Path, default=[], metavar="FILE",
                         help="add the cases of these JSONs that --out lacks")
     args = parser.parse_args()
+    use_planned(args.planned.resolve())
     pairs = [(f, k) for f in args.fluids for k in args.programmes]
     if args.simulate_only:
         if args.truths is None:

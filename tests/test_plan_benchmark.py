@@ -54,3 +54,18 @@ def test_a_truth_made_from_other_settings_is_refused(tmp_path):
     with pytest.raises(SystemExit, match="bingham_example.npz: made from other settings"):
         bench.stored_truth(path, "bingham", "example")
     assert bench.stored_truth(tmp_path / "absent.npz", "bingham", "example") is None
+
+
+def test_a_truth_of_the_default_plan_is_refused_for_another_plans_programme(tmp_path, monkeypatch):
+    truth = a_truth("bingham", "planned")
+    path = tmp_path / "bingham_planned.npz"
+    bench.store_truth(path, truth, 1.0, bench.truth_identity(truth.fluid, "planned"))
+    spec, _ = bench.programme(bench.PROGRAMMES["planned"])
+    other = tmp_path / "planned.yaml"  # the default plan with its slowest level halved
+    other.write_text(json.dumps({**spec, "segments": [{**spec["segments"][0], "speed": 0.005},
+                                                      *spec["segments"][1:]]}))
+    monkeypatch.setitem(bench.PROGRAMMES, "planned", bench.PROGRAMMES["planned"])
+    bench.use_planned(other)
+    assert bench.programme(bench.PROGRAMMES["planned"])[0]["segments"][0]["speed"] == 0.005
+    with pytest.raises(SystemExit, match="bingham_planned.npz: made from other settings"):
+        bench.stored_truth(path, "bingham", "planned")
