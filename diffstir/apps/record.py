@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -131,6 +132,7 @@ def sequential_planner(cfg: DictConfig) -> tuple[dict, Callable, Callable]:
     ``sim``, ``prior``, ``plan`` and ``sequential`` blocks, checked (and the rig calibrated) before any device
     opens."""
     check_processes(cfg)
+    torch.set_num_threads(int(cfg.threads))
     if cfg.stir.file:
         raise ConfigError("stir.file: the sequential mode plans its own stirs; give stir.file=null or "
                           "sequential.enabled=false")
