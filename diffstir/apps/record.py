@@ -36,7 +36,7 @@ from omegaconf import DictConfig, OmegaConf
 from diffstir.apps import Run, check_processes, command, config_workers
 from diffstir.apps.plan import CalibrationProgress, plan_inputs
 from diffstir.behaviour import BehaviourSettings, characterise
-from diffstir.errors import ConfigError, DiffstirError
+from diffstir.errors import ConfigError, DiffstirError, is_number
 from diffstir.hardware import DensitySettings, HardwareError, Session, StirSettings, load_calibration, load_trajectory
 from diffstir.lab import stirring_programme
 from diffstir.planning import rig_calibration
@@ -141,7 +141,7 @@ def sequential_planner(cfg: DictConfig) -> tuple[dict, Callable, Callable]:
                           "planned as it goes; use dry_run.mode=mean")
     rig, sim_config, prior, settings = plan_inputs(cfg)
     speeds = tuple(cfg.sequential.first)
-    if len(speeds) < 2 or not all(isinstance(u, (int, float)) and 0 < u <= settings.arm.max_speed for u in speeds):
+    if len(speeds) < 2 or not all(is_number(u) and 0 < u <= settings.arm.max_speed for u in speeds):
         raise ConfigError(f"sequential.first = {list(speeds)} m/s; expected two or more speeds in (0, "
                           f"{settings.arm.max_speed}] m/s (plan.arm.max_speed)")
     workers = config_workers(cfg)
