@@ -58,7 +58,7 @@ from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.behaviour.flow_laws import laws_of_points
 from diffstir.fitting import Z95, FitSettings
 from diffstir.identification import identify
-from diffstir.lab import Fluid, HiddenPhysicsSpec, make_fluid_law, stirring_programme
+from diffstir.lab import Fluid, HiddenPhysicsSpec, make_fluid_law, programme_path
 from diffstir.lab.synth import TruthSimulation, read_truth, simulate_truth
 from diffstir.rig import Rig
 from diffstir.planning.calibration import SHIPPED, Calibration
@@ -117,8 +117,7 @@ def truth_family(law: dict, band: tuple[float, float]) -> str:
 def programme(path: Path) -> tuple[dict, object]:
     """The programme of the ``conf/lab/programme`` file ``path`` and its trajectory."""
     spec = yaml.safe_load(path.read_text())
-    return spec, stirring_programme(spec["segments"], radius=spec["radius"], ramp_time=spec["ramp_time"],
-                                    start_angle=spec.get("start_angle", 0.0))
+    return spec, programme_path(spec)
 
 
 def truth_identity(fluid: Fluid, kind: str) -> dict:

@@ -25,7 +25,7 @@ from identification_benchmark import sensor_preset, sim
 from plan_benchmark import FLUIDS, against_truth, fluid_named, truth_family
 
 from diffstir.behaviour import BehaviourSettings, characterise
-from diffstir.lab import stirring_programme
+from diffstir.lab import programme_path
 from diffstir.lab.synth import read_truth, simulate_truth
 from diffstir.planning import PlanSettings, Prior
 from diffstir.planning.calibration import SHIPPED, Calibration
@@ -49,8 +49,7 @@ def main() -> None:
     steps, recordings = [], []
     while True:
         started = time.perf_counter()
-        trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
-                                        ramp_time=programme["ramp_time"])
+        trajectory = programme_path(programme)
         truth = simulate_truth(fluid, trajectory, sim_config=sim("lab/sim/truth2d.yaml"))
         recordings.append(read_truth(truth, sensor_preset("paper"), seed=args.seed + len(recordings),
                                      name=f"{args.fluid}_{len(recordings)}").recording)

@@ -38,7 +38,7 @@ from diffstir.apps.plan import CalibrationProgress, plan_inputs
 from diffstir.behaviour import BehaviourSettings, characterise
 from diffstir.errors import ConfigError, DiffstirError, is_number
 from diffstir.hardware import DensitySettings, HardwareError, Session, StirSettings, load_calibration, load_trajectory
-from diffstir.lab import stirring_programme
+from diffstir.lab import programme_path
 from diffstir.planning import rig_calibration
 from diffstir.planning.result import PATH_RATE
 from diffstir.planning.sequential import NextSegment, StirSoFar, first_stir, next_segment
@@ -91,12 +91,6 @@ def _ask_missing(values: dict) -> dict:
     return values
 
 
-def programme_path(programme: dict) -> Trajectory:
-    """The rod's path [m] of a ``conf/lab/programme`` mapping, sampled as diffstir-plan's stir_path.csv is."""
-    return stirring_programme(programme["segments"], radius=programme["radius"], ramp_time=programme["ramp_time"],
-                              start_angle=programme.get("start_angle", 0.0), sample_rate=PATH_RATE)
-
-
 def stir_sequentially(session: Session, first: dict, analyse: Callable[[list[Path], Path], StirSoFar],
                       next_stir: Callable[[StirSoFar], NextSegment]) -> list[dict]:
     """Stir ``first`` (a programme mapping), then, after each stir k, ``analyse`` every stir so far into
@@ -107,7 +101,7 @@ def stir_sequentially(session: Session, first: dict, analyse: Callable[[list[Pat
     programme, recordings, steps = first, [], []
     while programme is not None:
         name = f"stir-{len(recordings) + 1}"
-        path = programme_path(programme)
+        path = programme_path(programme, PATH_RATE)  # as diffstir-plan's stir_path.csv
         recordings.append(session.stir(path, name=name))
         out = session.path / f"analysis-{len(recordings)}"
         so_far = analyse(recordings, out)
@@ -176,7 +170,7 @@ def record(cfg: DictConfig) -> Session:
     if rig.rod.mesh is not None:
         raise ConfigError("rig.rod.mesh: a recording's rod is a cylinder; record with rig.rod.mesh=null")
     sequential = sequential_planner(cfg) if cfg.sequential.enabled else None
-    stir = _programme(stir_settings) if sequential is None else programme_path(sequential[0])
+    stir = _programme(stir_settings) if sequential is None else programme_path(sequential[0], PATH_RATE)
     dry = _dry_programme(stir, dry_run.mode, dry_run.duration, dry_run.lift)
 
     def step(message: str) -> None:

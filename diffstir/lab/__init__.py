@@ -12,7 +12,7 @@ together (``Blend``; docs/mixing.md). See docs/virtual-lab.md.
 from diffstir.lab.blend import Blend, BlendMaterial, simulate_blend, synthesise_blend
 from diffstir.lab.fe_truth import FiniteElementTruth
 from diffstir.lab.fluid import Fluid, make_fluid_law
-from diffstir.lab.programme import Segment, programme_speed, stirring_programme
+from diffstir.lab.programme import Segment, programme_path, programme_speed, stirring_programme
 from diffstir.lab.sensor import SensorModel, dead_band, first_order_lag, one_sided, quantise
 from diffstir.lab.synth import (
     HiddenPhysicsSpec, LabRecording, TruthSimulation, density_block, read_truth, simulate_truth, synthesise,
@@ -34,6 +34,7 @@ __all__ = [
     "first_order_lag",
     "make_fluid_law",
     "one_sided",
+    "programme_path",
     "programme_speed",
     "quantise",
     "read_truth",

@@ -74,3 +74,10 @@ def stirring_programme(segments: Sequence[Segment | Mapping], *, radius: float, 
               for s, p, t0 in zip(segs, previous, starts))
     phase = start_angle + arc / radius
     return Trajectory(t, radius * np.stack([np.cos(phase), np.sin(phase)], -1), 0.0, 0.0)
+
+
+def programme_path(programme: Mapping, sample_rate: float = 1000.0) -> Trajectory:
+    """The rod's path of a ``conf/lab/programme`` mapping (``segments``, ``radius`` [m], ``ramp_time`` [s] and,
+    optionally, ``start_angle`` [rad]) sampled at ``sample_rate`` [Hz] (``stirring_programme``)."""
+    return stirring_programme(programme["segments"], radius=programme["radius"], ramp_time=programme["ramp_time"],
+                              start_angle=programme.get("start_angle", 0.0), sample_rate=sample_rate)

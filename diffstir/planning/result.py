@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..lab.programme import programme_speed, stirring_programme
+from ..lab.programme import programme_path, programme_speed
 from ..plots import pyplot, save_figure
 from ..report_files import Report
 from .calibration import Calibration
@@ -104,8 +104,7 @@ def write_programme(programme: dict, out: str | Path) -> dict[str, Path]:
     paths["programme"].parent.mkdir(parents=True, exist_ok=True)
     paths["programme"].write_text("# diffstir-synth lab/programme: the planned stir (diffstir-plan)\n"
                                   + yaml.safe_dump(programme, sort_keys=False))
-    path = stirring_programme(programme["segments"], radius=programme["radius"], ramp_time=programme["ramp_time"],
-                              start_angle=programme.get("start_angle", 0.0), sample_rate=PATH_RATE)
+    path = programme_path(programme, PATH_RATE)
     np.savetxt(paths["path"], np.column_stack([path.t, path.xy]), delimiter=",", header="t,x,y", comments="",
                fmt="%.6f")
     return paths
