@@ -1,9 +1,14 @@
-"""Independent jobs side by side in worker processes, one torch thread each, their events passed to the parent.
+"""Independent jobs side by side in worker processes, their events passed to the parent.
 
 A job (``Job``) is a picklable object with a ``stage`` and a ``key`` that name it, a ``priority`` (higher starts
 first) and ``run(report)``, which returns its result and may call ``report(event)`` with a tuple
 ``(kind, stage, name, *data)`` (progress, checkpoints): the parent's ``report`` receives it as it happens. The
 identification's fits (``fitting.jobs``) and the diagnosis's candidates (``diagnosis.compare``) run this way.
+
+Each worker runs ``worker_threads`` torch threads: this process's, at most its share of the CPUs. A process that
+never set its threads has one per CPU; workers that each ran that many on the same cores would wait at each other's
+OpenMP barriers (two threads per process made a step 2.9-4.4 times slower on a busy 2-core machine,
+docs/benchmarks-cpu.md).
 """
 
 from __future__ import annotations
@@ -38,6 +43,12 @@ def default_workers(device: str = "cpu") -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+def worker_threads(count: int) -> int:
+    """Torch threads for each of ``count`` workers: this process's (``torch.get_num_threads``, as the apps' ``threads``
+    sets it), at most the CPUs this process may use divided among the workers, and at least one."""
+    return max(1, min(torch.get_num_threads(), default_workers() // max(count, 1)))
+
+
 class Workers:
     """Runs jobs (``Job``) in up to ``count`` processes; ``report`` receives every job's events
     in this process. They run in this process when ``count`` is 1, and when this process is itself a worker of a
@@ -65,7 +76,7 @@ class Workers:
             context = multiprocessing.get_context("spawn")  # fork would copy the parent's torch thread pools
             self.events = context.Queue()
             self.pool = ProcessPoolExecutor(count, mp_context=context, initializer=_start_worker,
-                                            initargs=(self.events, torch.get_num_threads(), os.getpid()))
+                                            initargs=(self.events, worker_threads(count), os.getpid()))
             self.slots = count
 
     def __enter__(self) -> "Workers":
