@@ -122,3 +122,12 @@ def test_the_flow_curve_analysis_refuses_the_joint_index_slope_test():
         BehaviourSettings(analysis="flow_curve", slope_test="joint_index")
     with pytest.raises(ConfigError, match="behaviour.analysis"):
         BehaviourSettings(analysis="rheometer")
+
+
+def test_the_rungs_and_points_do_not_depend_on_how_many_processes_simulate_them(lab_recordings):
+    # the rounds add RUNGS_PER_ROUND rungs whatever the workers: one process runs them in turn, two side by side
+    settings = BehaviourSettings(joint_models=["newtonian", "power_law"], **SETTINGS)
+    (alone,), (pair,) = (characterise([lab_recordings["thinning"]], config=FAST, workers=w,
+                                      settings=settings).programmes for w in (1, 2))
+    assert alone.rungs == pair.rungs and alone.simulations == pair.simulations
+    assert [p.viscosity for p in alone.points] == pytest.approx([p.viscosity for p in pair.points], rel=1e-6)

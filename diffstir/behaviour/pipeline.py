@@ -181,7 +181,7 @@ def programme_fits(windows: list[list[SpeedWindow]], config: SimConfig, density:
     with Workers(workers, partial(_programme_evaluation, tracker)) as pool:
         for k, recording_windows in enumerate(windows):
             if recording_windows:
-                fit = programme_viscosities(recording_windows, config, density, workers=pool, slots=workers,
+                fit = programme_viscosities(recording_windows, config, density, workers=pool,
                                             model_error=settings.model_error, inertial_error=settings.inertial_error,
                                             stage=f"programme {k}")
                 tracker.finished(f"programme {k}")

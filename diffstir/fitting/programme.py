@@ -11,8 +11,9 @@ of a Newtonian fluid (a rung) reads every window at once, so the rungs form a la
    rungs that bracket it (extrapolated from the nearest two, at most ``MAX_STEP`` in ln η beyond), with the
    sensor's noise share of |m| added to the simulated side (``magnitude.expected_magnitude``). The rungs start at
    ``START_VISCOSITIES``; while a window's bracket is wider than a factor ``BRACKET``, the windows with the widest
-   get a rung at their estimate (a factor √``BRACKET`` beyond a rung already there, towards the wider side), as
-   many as run side by side, up to ``MAX_RUNGS``.
+   get a rung at their estimate (a factor √``BRACKET`` beyond a rung already there, towards the wider side),
+   ``RUNGS_PER_ROUND`` at a time, up to ``MAX_RUNGS``. The rounds do not depend on how many processes run them, so
+   neither do the rungs nor the points.
 2. **Fit.** The window's readings are fitted by p(ln η) + b, the rungs' readings linear in ln η between the two that
    bracket the estimate and a baseline b [N] with the prior N(0, q²), q the sensor's resolution
    (``apparent.with_baseline``, the window fits' last step, with their errors: the noise's from the residuals and
@@ -59,6 +60,8 @@ BRACKET = 1.5
 SAME_RUNG = 0.05
 #: Most rungs of one programme.
 MAX_RUNGS = 8
+#: Rungs added in each round of bracketing (two simulations side by side on the 2-core default).
+RUNGS_PER_ROUND = 2
 #: Largest extrapolation beyond the last rung in ln η [1], and the lowest slope s_k of a resolvable window [1].
 MAX_STEP, MIN_SLOPE = 1.5, 0.05
 #: Slope d ln M / d ln η [1] from which a window's drag counts as viscous, where k_s is measured: at the
@@ -115,11 +118,11 @@ class ProgrammeFit:
 
 
 def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density: float, *, workers: Workers,
-                          slots: int = 2, model_error: float, inertial_error: float = 0.0,
+                          model_error: float, inertial_error: float = 0.0,
                           stage: str = "programme") -> ProgrammeFit:
     """The apparent viscosity of each of one recording's ``windows`` (module docstring) on the simulation
-    ``config`` for a fluid of ``density`` [kg/m³], the simulations run by ``workers``, ``slots`` rungs at a
-    time; ``model_error`` σ_m and ``inertial_error`` σ_i are the simulator's relative force errors
+    ``config`` for a fluid of ``density`` [kg/m³], the simulations run by ``workers``; ``model_error`` σ_m and
+    ``inertial_error`` σ_i are the simulator's relative force errors
     (``fitting.uncertainty``)."""
     recording = windows[0].recording if windows else None
     if recording is None or any(w.recording is not recording for w in windows):
@@ -147,7 +150,7 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
     while np.max(width) > math.log(BRACKET) and len(readings) < MAX_RUNGS:
         new: list[float] = []
         for k in np.argsort(-width):
-            if len(new) == min(slots, MAX_RUNGS - len(readings)) or width[k] <= math.log(BRACKET):
+            if len(new) == min(RUNGS_PER_ROUND, MAX_RUNGS - len(readings)) or width[k] <= math.log(BRACKET):
                 break
             eta = min(_next_rung(rungs.viscosities, float(log_eta[k])), cap)
             if all(abs(math.log(eta / v)) > SAME_RUNG for v in [*new, *rungs.viscosities]):
