@@ -14,9 +14,9 @@ from diffstir.behaviour import JOINT_MODELS
 from diffstir.fitting import SHEAR_RATE_PROBES, Z95, FitModel, ViscosityLadder
 from diffstir.fitting.initial import mean_readings
 from diffstir.mpm import FINE_STAGE, SimConfig
-from diffstir.planning import (CALIBRATION_STEADY_TIME, ArmLimits, Calibration, PlanSettings, Planner, Prior,
-                               Programme, Window, WindowErrors, calibrate, candidates, fisher_information,
-                               information_gain, rig_calibration, window_points)
+from diffstir.planning import (CALIBRATION_SAMPLE_RATE, CALIBRATION_STEADY_TIME, ArmLimits, Calibration, PlanSettings,
+                               Planner, Prior, Programme, Window, WindowErrors, calibrate, candidates,
+                               fisher_information, information_gain, rig_calibration, window_points)
 from diffstir.planning.calibration import _one_speed_problem
 from diffstir.planning.information import expected_delta_bic, predicted_intervals
 from diffstir.rig import Rig
@@ -217,22 +217,31 @@ def test_a_calibration_is_simulated_once_and_then_read_from_the_cache(tmp_path):
 
 def test_the_command_defaults_are_the_python_defaults_and_their_calibration_is_shipped(tmp_path):
     # diffstir-plan's conf/plan.yaml and PlanSettings(), Prior() agree, and the calibration they need is the one in
-    # diffstir/data/plan/, so the default plan simulates nothing
+    # diffstir/data/plan/, so the default plan simulates nothing; nor does diffstir-record's sequential mode, whose
+    # plan is for the session's 200 Hz sensor: the calibration does not depend on the sensor's rate
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose("plan")
+        cfg, recording = compose("plan"), compose("record")
     rig, config, prior, settings = plan_inputs(cfg)
     assert (prior, settings, config) == (Prior(), PlanSettings(), FINE_STAGE)
     assert prior.laws == tuple(JOINT_MODELS)  # the laws the planned stir's flow-curve analysis selects among
+    record_settings = plan_inputs(recording)[3]
+    assert (record_settings.sample_rate, record_settings.resolution) == (recording.sensor.sample_rate,
+                                                                         recording.sensor.resolution)
+    assert record_settings.sample_rate != settings.sample_rate
     events = []
     calibration = rig_calibration(rig, prior, settings, config, cache_dir=tmp_path, report=events.append)
+    assert rig_calibration(rig, prior, record_settings, config, cache_dir=tmp_path, report=events.append) == calibration
     assert events == [] and not (tmp_path / "plan").exists()
     # and the simulator still reads what was shipped: the middle speed's 1 Pa s probe, simulated again (float32
-    # round-off on another machine moves it by far less than the 3 % force error the plan assumes)
+    # round-off on another machine moves it by far less than the 3 % force error the plan assumes), and read at
+    # the record sensor's rate it is the same to a tenth of that error
     speed = calibration.speeds[len(calibration.speeds) // 2]
     ladder = calibration.ladder(speed)
-    problem = _one_speed_problem(rig, config, settings.density, settings.radius, speed,
-                                 ramp_time=settings.arm.ramp_time(max(calibration.speeds), settings.min_ramp),
-                                 steady_time=CALIBRATION_STEADY_TIME, settle_time=settings.settle_time,
-                                 sample_rate=settings.sample_rate)
-    (mean_abs,) = mean_readings(problem, [FitModel.named("newtonian", eta=1.0)])
-    assert mean_abs == pytest.approx(ladder.mean_abs[ladder.viscosities.index(1.0)], rel=1e-3)
+    shipped = ladder.mean_abs[ladder.viscosities.index(1.0)]
+    for rate, tolerance in ((CALIBRATION_SAMPLE_RATE, 1e-3), (record_settings.sample_rate, 3e-3)):
+        problem = _one_speed_problem(rig, config, settings.density, settings.radius, speed,
+                                     ramp_time=settings.arm.ramp_time(max(calibration.speeds), settings.min_ramp),
+                                     steady_time=CALIBRATION_STEADY_TIME, settle_time=settings.settle_time,
+                                     sample_rate=rate)
+        (mean_abs,) = mean_readings(problem, [FitModel.named("newtonian", eta=1.0)])
+        assert mean_abs == pytest.approx(shipped, rel=tolerance)

@@ -24,7 +24,7 @@ import contextlib
 import json
 import math
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
@@ -92,12 +92,12 @@ def _ask_missing(values: dict) -> dict:
 
 
 def stir_sequentially(session: Session, first: dict, analyse: Callable[[list[Path], Path], StirSoFar],
-                      next_stir: Callable[[StirSoFar], NextSegment]) -> list[dict]:
+                      next_stir: Callable[[StirSoFar, float], NextSegment]) -> list[dict]:
     """Stir ``first`` (a programme mapping), then, after each stir k, ``analyse`` every stir so far into
-    ``analysis-<k>/`` and stir the programme that ``next_stir`` calls for, until it calls for none (the family is
-    decided, or no stir fits the budget left). Each stir starts where the last one left the rod, so that the arm
-    does not drag it through the resting fluid to a start pose. Each step (its stir, the stir so far, the decision)
-    goes into session.yaml's ``sequence`` as it is taken; returns the steps."""
+    ``analysis-<k>/`` and stir the programme that ``next_stir`` calls for with the sensor's noise the dry run measured
+    [N], until it calls for none (the family is decided, or no stir fits the budget left). Each stir starts where the
+    last one left the rod, so that the arm does not drag it through the resting fluid to a start pose. Each step (its
+    stir, the stir so far, the decision) goes into session.yaml's ``sequence`` as it is taken; returns the steps."""
     programme, recordings, steps = first, [], []
     while programme is not None:
         name = f"stir-{len(recordings) + 1}"
@@ -105,7 +105,7 @@ def stir_sequentially(session: Session, first: dict, analyse: Callable[[list[Pat
         recordings.append(session.stir(path, name=name))
         out = session.path / f"analysis-{len(recordings)}"
         so_far = analyse(recordings, out)
-        step = next_stir(so_far)
+        step = next_stir(so_far, session.baseline.std)
         decision = json.loads(json.dumps({**step.to_dict(), "elapsed": so_far.elapsed}, default=float))
         (out / "next.json").write_text(json.dumps(decision, indent=2) + "\n")
         steps.append({"stir": name, "programme": programme, "analysis": out.name, **decision})
@@ -124,7 +124,8 @@ def stir_sequentially(session: Session, first: dict, analyse: Callable[[list[Pat
 def sequential_planner(cfg: DictConfig) -> tuple[dict, Callable, Callable]:
     """The sequential mode's first stir, its analysis and its next stir (``stir_sequentially``), from ``cfg``'s
     ``sim``, ``prior``, ``plan`` and ``sequential`` blocks, checked (and the rig calibrated) before any device
-    opens."""
+    opens. The next stir is planned for the session's sensor: ``plan.resolution`` and ``plan.sample_rate`` are the
+    ``sensor`` block's (conf/record.yaml) and the noise is the dry run's."""
     check_processes(cfg)
     torch.set_num_threads(int(cfg.threads))
     if cfg.stir.file:
@@ -154,7 +155,10 @@ def sequential_planner(cfg: DictConfig) -> tuple[dict, Callable, Callable]:
                                 "(docs/flow-curve.md); the sequential mode has nothing to plan from")
         return so_far
 
-    return first_stir(settings, speeds), analyse, lambda so_far: next_segment(so_far, calibration, prior, settings)
+    def next_stir(so_far: StirSoFar, noise: float) -> NextSegment:
+        return next_segment(so_far, calibration, prior, replace(settings, noise=noise))
+
+    return first_stir(settings, speeds), analyse, next_stir
 
 
 def record(cfg: DictConfig) -> Session:

@@ -26,10 +26,15 @@ from .result import StirPlan
 
 #: How long each calibration stir holds its speed after the ramp [s]: the settling time and three behaviour windows.
 CALIBRATION_STEADY_TIME = 0.8
+#: The rate [Hz] at which a calibration stir's simulated force is read: its mean |reading| over the steady part does
+#: not depend on it, so one calibration serves a sensor of any rate (``PlanSettings.sample_rate`` counts the
+#: samples of a window).
+CALIBRATION_SAMPLE_RATE = 100.0
 
-__all__ = ["CALIBRATION_STEADY_TIME", "ArmLimits", "Assessment", "Calibration", "PLAN_LAWS", "PlanSettings", "Planner",
-           "Prior", "Programme", "StirPlan", "Window", "WindowErrors", "WindowPoint", "calibrate", "candidates",
-           "fisher_information", "information_gain", "plan", "probe_viscosities", "rig_calibration", "window_points"]
+__all__ = ["CALIBRATION_SAMPLE_RATE", "CALIBRATION_STEADY_TIME", "ArmLimits", "Assessment", "Calibration", "PLAN_LAWS",
+           "PlanSettings", "Planner", "Prior", "Programme", "StirPlan", "Window", "WindowErrors", "WindowPoint",
+           "calibrate", "candidates", "fisher_information", "information_gain", "plan", "probe_viscosities",
+           "rig_calibration", "window_points"]
 
 
 def plan(rig: Rig | None = None, prior: Prior | None = None, settings: PlanSettings | None = None, *,
@@ -59,4 +64,4 @@ def rig_calibration(rig: Rig, prior: Prior, settings: PlanSettings, config: SimC
     ramp = settings.arm.ramp_time(max(speeds), settings.min_ramp)
     return calibrate(rig, config, settings.density, settings.radius, speeds, probe_viscosities(prior.viscosity),
                      ramp_time=ramp, steady_time=CALIBRATION_STEADY_TIME, settle_time=settings.settle_time,
-                     sample_rate=settings.sample_rate, workers=workers, cache_dir=cache_dir, report=report)
+                     sample_rate=CALIBRATION_SAMPLE_RATE, workers=workers, cache_dir=cache_dir, report=report)

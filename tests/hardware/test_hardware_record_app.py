@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +20,10 @@ from omegaconf import OmegaConf
 
 from diffstir.apps import record
 from diffstir.hardware import ReplayArm, Session, read_session
+from diffstir.lab import programme_path
 from diffstir.planning import PlanSettings, Prior
 from diffstir.planning.calibration import SHIPPED, Calibration
+from diffstir.planning.result import PATH_RATE
 from diffstir.planning.sequential import StirSoFar, first_stir, next_segment
 from diffstir.recording import CupGeometry, RodGeometry, SensorSpec, load_recording
 
@@ -162,10 +165,19 @@ def test_the_sequential_mode_stirs_what_the_plan_calls_for_until_decided_or_the_
         session = Session(tmp_path, adc=adc, arm=arm, calibration=adc.calibration,
                           cup=CupGeometry(0.0425, fill_volume=738e-6), rod=RodGeometry(0.0125, 0.080),
                           sensor=SensorSpec("component", axis=(1.0, 0.0), resolution=0.005, sample_rate=200))
+        noises = []
+
+        def next_stir(so_far, noise):  # as record.sequential_planner's: planned with the dry run's noise
+            noises.append(noise)
+            return next_segment(so_far, calibration, prior, replace(settings, noise=noise))
+
         with session:
-            steps = record.stir_sequentially(session, first_stir(settings),
-                                             _flow_curve_of(laws[fluid], calibration, arm),
-                                             lambda so_far: next_segment(so_far, calibration, prior, settings))
+            first = first_stir(settings)
+            session.dry_run(record._dry_programme(programme_path(first, PATH_RATE), "mean", 0.5, 0.10))
+            arm.followed.clear()  # the stirs' paths alone
+            steps = record.stir_sequentially(session, first, _flow_curve_of(laws[fluid], calibration, arm),
+                                             next_stir)
+    assert noises == [session.baseline.std] * len(steps) and session.baseline.std > 0
     meta = read_session(session.path)
     assert meta["status"] == "complete" and meta["sequence"] == steps and len(arm.followed) == len(steps)
     for k, (step, path) in enumerate(zip(steps, arm.followed)):
