@@ -9,8 +9,10 @@ analysis against a finer run of its own kind of simulator, not against a real cu
 (``conf/lab/sensor/paper.yaml``) with seeds F..F+S-1 (``--first-seed``, ``--seeds``).
 
 - planned: analysed as ``diffstir-fit experiment=flow_curve`` does (``behaviour.analysis=flow_curve`` on
-  ``sim=slice2d``); its class, and each parameter of the truth's law among the laws fitted to the points with
-  whether its 95 % interval holds the truth (an open interval holds it and says the parameter is not identified);
+  ``sim=slice2d``); its class, each window's point with its standard errors of ln η (the noise's and baseline's
+  ``log_std``, the simulator's ``model_log_std``) and the rungs it was read off, and each parameter of the truth's law
+  among the laws fitted to the points with whether its 95 % interval holds the truth (an open interval holds it and
+  says the parameter is not identified);
 - one speed: analysed as ``diffstir-fit`` does (``identify``, coarse then fine), the family of its selected law
   (``fitting.law_family``).
 
@@ -220,8 +222,9 @@ def planned_case(recording, config, workers: int) -> dict:
     summary = result.summary()
     return {"class": summary["behaviour"]["class"], "confidence": summary["behaviour"]["confidence"],
             "selected": summary["joint_fit"]["selected"], "laws": summary["joint_fit"]["laws"],
-            "points": [{k: p[k] for k in ("speed", "shear_rate", "viscosity", "viscosity_ci95")}
-                       for p in summary["points"]],
+            "points": [{k: p[k] for k in ("speed", "shear_rate", "viscosity", "viscosity_ci95", "log_std",
+                                          "model_log_std", "baseline")} for p in summary["points"]],
+            "rungs": summary["programmes"][0]["rungs"],
             "seconds": time.perf_counter() - started}
 
 
