@@ -14,7 +14,7 @@ from diffstir.behaviour.report import markdown
 from diffstir.errors import ConfigError
 from diffstir.recording import RecordingError
 from diffstir.fitting import PROGRAMME_SIMULATIONS
-from diffstir.fitting.programme import BRACKET, MAX_RUNGS, MIN_SLOPE, Rungs, _probe_window
+from diffstir.fitting.programme import BRACKET, MAX_RUNGS, MIN_SLOPE, Rungs, _probe_window, _waveform_estimate
 
 #: FAST's inertia is its own, so σ_i (the 2.5 mm slice's error against finite elements) is left out (test_behaviour)
 SETTINGS = {"analysis": "flow_curve", "replicates": 50, "inertial_error": 0.0}
@@ -42,6 +42,25 @@ def test_rungs_read_each_window_between_the_two_that_bracket_it():
     assert abs(log_near - math.log(0.5)) <= math.log(BRACKET) ** 2 / 32 / s_near
     assert width[1] == math.inf and log_eta[1] > x[2]
     assert width[2] == math.inf and slope[2] < 0
+
+
+def test_a_window_is_fitted_on_readings_linear_in_viscosity_between_its_rungs():
+    """A Stokes drag η w(t) [N] read off rungs a factor 3 apart, from a start in the wrong half of the bracket: the
+    fit lands on the truth within its noise interval, and its slope J = d p / d ln η is the local η w, so σ_i finds
+    no inertial part p − J to count (a chord in ln η has J = 2 w / ln 3, 1.5 times the local slope at 1.2 Pa·s)."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 2.0, 400)
+    w = 0.01 * (1.0 + 0.5 * np.sin(3.0 * t))  # N/(Pa·s)
+    readings = {eta: eta * w for eta in (1.0, 3.0)}
+    truth, offset, noise = 1.2, 0.0005, 1e-4  # Pa·s, N, N
+    measured = truth * w + offset + noise * rng.standard_normal(t.size)
+    log_eta, log_std, model_log_std, baseline, p = _waveform_estimate(
+        readings, measured, np.ones(t.size, bool), math.log(2.5), resolution=0.001, model_error=0.0,
+        inertial_error=0.3)
+    assert abs(log_eta - math.log(truth)) <= 4 * log_std
+    assert model_log_std <= 1e-9
+    assert baseline == pytest.approx(offset, abs=4 * noise)
+    np.testing.assert_allclose(p, math.exp(log_eta) * w, rtol=1e-12)
 
 
 def test_a_window_below_a_flat_foot_of_the_ladder_asks_for_no_thinner_rung():

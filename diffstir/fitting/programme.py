@@ -14,14 +14,15 @@ of a Newtonian fluid (a rung) reads every window at once, so the rungs form a la
    get a rung at their estimate (a factor √``BRACKET`` beyond a rung already there, towards the wider side),
    ``RUNGS_PER_ROUND`` at a time, up to ``MAX_RUNGS``. The rounds do not depend on how many processes run them, so
    neither do the rungs nor the points.
-2. **Fit.** The window's readings are fitted by p(ln η) + b, the rungs' readings linear in ln η between the two that
+2. **Fit.** The window's readings are fitted by p(η) + b, the rungs' readings linear in η between the two that
    bracket the estimate and a baseline b [N] with the prior N(0, q²), q the sensor's resolution
    (``apparent.with_baseline``, the window fits' last step, with their errors: the noise's from the residuals and
-   N_eff, the simulator's σ_m on p and σ_i on its inertial part). The size alone takes the sensor's offset and drift
-   for drag: at the slowest planned speed a window covers a fifth of a turn, the component reading keeps its sign,
-   and the paper sensor's 2 mN offset and 0.5 mN/s drift are 20 % or more of a 0.65 Pa·s fluid's 10 mN drag there.
-   Over a factor 1.5 the readings are straight in ln η to well under the 3 % force error (a Stokes drag ∝ η on top of
-   an inertial part), so the interpolation adds nothing the interval has to hold.
+   N_eff, the simulator's σ_m on p and σ_i on its inertial part p − J, J = d p / d ln η). The size alone takes the
+   sensor's offset and drift for drag: at the slowest planned speed a window covers a fifth of a turn, the component
+   reading keeps its sign, and the paper sensor's 2 mN offset and 0.5 mN/s drift are 20 % or more of a 0.65 Pa·s
+   fluid's 10 mN drag there. The drag is a Stokes part ∝ η on an inertial part that barely changes with η, so it is
+   linear in η: its chord in ln η would read J 18 % low to 23 % high within a factor 1.5, and σ_i would take the
+   difference for inertia.
 
 A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
 is not ``resolvable``, nor is one read at the simulator's ``viscosity_cap`` or above it (``capped``: no rung is
@@ -64,6 +65,9 @@ MAX_RUNGS = 8
 RUNGS_PER_ROUND = 2
 #: Largest extrapolation beyond the last rung in ln η [1], and the lowest slope s_k of a resolvable window [1].
 MAX_STEP, MIN_SLOPE = 1.5, 0.05
+#: Gauss-Newton steps of a window's fit at most, and the step in ln η [1] below which it has converged: a thousandth
+#: of the 3 % force error.
+GAUSS_NEWTON_STEPS, CONVERGED = 20, 3e-5
 #: Slope d ln M / d ln η [1] from which a window's drag counts as viscous, where k_s is measured: at the
 #: slowest speed the drag of a thin fluid can sit at the sensor's resolution, where the probes read noise.
 VISCOUS_SLOPE = 0.5
@@ -217,19 +221,26 @@ def _waveform_estimate(readings: dict[float, np.ndarray], measured: np.ndarray, 
                        resolution: float, model_error: float, inertial_error: float
                        ) -> tuple[float, float, float, float, np.ndarray]:
     """A window's ln η, its standard errors from the noise and from the simulator, its baseline b [N] and the
-    rungs' readings there [N]: the window's ``measured`` readings [N] fitted by p(ln η) + b, p linear in ln η
-    between the two rungs that bracket it (``apparent.with_baseline``: b's prior N(0, ``resolution``²)), from the
-    size's estimate ``log_eta`` and again in the bracket the estimate moved to, until it stays in its bracket."""
-    etas = sorted(readings)
+    rungs' readings there [N]: the window's ``measured`` readings [N] fitted by p(η) + b, p linear in η between the
+    two rungs that bracket it, p = p_lo + (η − η_lo) (p_hi − p_lo) / (η_hi − η_lo), so that J = d p / d ln η =
+    η (p_hi − p_lo) / (η_hi − η_lo) is the local slope of a drag ∝ η on an inertial part. Gauss-Newton steps in
+    ln η (``apparent.with_baseline``: b's prior N(0, ``resolution``²)) from the size's estimate ``log_eta``, in the
+    bracket each step lands in, until a step moves ln η by less than ``CONVERGED``."""
+    etas = np.array(sorted(readings))
     x = np.log(etas)
-    for _ in range(x.size):
+    for _ in range(GAUSS_NEWTON_STEPS):
         j = _bracket(x, log_eta)
         low, high = (readings[etas[i]][mask] for i in (j - 1, j))
-        jacobian = (high - low) / (x[j] - x[j - 1])
-        p = low + (log_eta - x[j - 1]) * jacobian
-        log_eta, log_std, model_log_std, baseline = with_baseline(jacobian, measured - p, log_eta, resolution, p,
-                                                                  model_error, inertial_error)
-        log_eta = float(np.clip(log_eta, x[0] - MAX_STEP, x[-1] + MAX_STEP))
-        if _bracket(x, log_eta) == j:
+        per_viscosity = (high - low) / (etas[j] - etas[j - 1])  # d p / d η [N/(Pa·s)]
+        p = low + (math.exp(log_eta) - etas[j - 1]) * per_viscosity
+        step = with_baseline(math.exp(log_eta) * per_viscosity, measured - p, log_eta, resolution, p,
+                             model_error, inertial_error)
+        moved = float(np.clip(step[0], x[0] - MAX_STEP, x[-1] + MAX_STEP))
+        converged = abs(moved - log_eta) < CONVERGED
+        log_eta, (log_std, model_log_std, baseline) = moved, step[1:]
+        if converged:
             break
-    return log_eta, log_std, model_log_std, baseline, low + (log_eta - x[j - 1]) * jacobian
+    j = _bracket(x, log_eta)
+    low, high = (readings[etas[i]][mask] for i in (j - 1, j))
+    return (log_eta, log_std, model_log_std, baseline,
+            low + (math.exp(log_eta) - etas[j - 1]) * (high - low) / (etas[j] - etas[j - 1]))
