@@ -134,6 +134,9 @@ def sequential_planner(cfg: DictConfig) -> tuple[dict, Callable, Callable]:
     if cfg.dry_run.mode == "profile":
         raise ConfigError("dry_run.mode = 'profile' runs one programme in air, and the sequential mode's stirs are "
                           "planned as it goes; use dry_run.mode=mean")
+    if cfg.sensor.resolution is None:
+        raise ConfigError("sensor.resolution = None; the sequential mode plans each stir for the sensor's "
+                          "resolution: give it in N")
     rig, sim_config, prior, settings = plan_inputs(cfg)
     speeds = tuple(cfg.sequential.first)
     if len(speeds) < 2 or not all(is_number(u) and 0 < u <= settings.arm.max_speed for u in speeds):

@@ -40,6 +40,7 @@ def test_the_sequential_mode_stirs_analyses_and_plans_until_the_budget_is_spent(
     (["dry_run.mode=profile"], "dry_run.mode = 'profile' runs one programme in air"),
     (["stir.file=old.csv"], "stir.file: the sequential mode plans its own stirs"),
     (["sequential.first=[0.02]"], "sequential.first = [0.02] m/s; expected two or more speeds in (0, 0.25] m/s"),
+    (["sensor.resolution=null"], "sensor.resolution = None; the sequential mode plans each stir for the sensor's"),
 ])
 def test_a_sequential_setting_it_cannot_run_is_refused_in_one_line_before_any_device_opens(tmp_path, args,
                                                                                             message):
