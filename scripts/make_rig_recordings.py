@@ -30,7 +30,7 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from diffstir.lab import (
-    Blend, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise, synthesise_blend,
+    Blend, Fluid, HiddenPhysicsSpec, SensorModel, programme_path, synthesise, synthesise_blend,
     write_lab_recording,
 )
 
@@ -76,8 +76,7 @@ def make(name: str, out: Path, overwrite: bool) -> None:
     rig = instantiate(OmegaConf.load(ROOT / "conf" / "rig" / "paper.yaml"))
     sim_config = instantiate(OmegaConf.load(ROOT / "conf" / "lab" / "sim" / f"{truth}.yaml"))
     sensor = SensorModel(**_preset("sensor", sensor_preset))
-    trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
-                                    ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
+    trajectory = programme_path(programme)
     started = time.perf_counter()
     if blend is not None:
         lab = synthesise_blend(Blend.from_mapping(blend), trajectory, rig=rig, sim_config=sim_config, sensor=sensor,

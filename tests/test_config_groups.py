@@ -133,6 +133,12 @@ def test_each_group_option_composes_and_builds(app, key, option):
         assert setup.trajectory.duration > 0 and setup.fluid.density > 0
 
 
+def test_a_lab_group_missing_a_setting_is_refused_naming_the_group_and_the_setting():
+    cfg = composed("synth", ["~lab.programme.radius"])
+    with pytest.raises(ConfigError, match=r"^lab/programme: no setting 'radius'"):
+        lab_setup(cfg)
+
+
 def test_the_fit_block_composes_on_its_schema_to_its_defaults():
     # conf/fit.yaml's values are those of FitSettings(), which identify() uses when given none: one default
     settings = OmegaConf.to_object(composed("fit").fit)

@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from diffstir.apps import Run, command
 from diffstir.errors import ConfigError, DiffstirError, OutputError, check_choices
 from diffstir.lab import (
-    Blend, FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, stirring_programme, synthesise,
+    Blend, FiniteElementTruth, Fluid, HiddenPhysicsSpec, SensorModel, programme_path, synthesise,
     synthesise_blend, truth_path, write_lab_recording,
 )
 from diffstir.mpm import SimConfig
@@ -71,8 +71,7 @@ def lab_setup(cfg: DictConfig) -> LabSetup:
     lab = OmegaConf.to_container(cfg.lab, resolve=True)
     programme = lab["programme"]
     with _refused_as("lab/programme"):
-        trajectory = stirring_programme(programme["segments"], radius=programme["radius"],
-                                        ramp_time=programme["ramp_time"], start_angle=programme["start_angle"])
+        trajectory = programme_path(programme)
     with _refused_as("lab/fluid"):
         fluid = Fluid.from_mapping(lab["fluid"])
     with _refused_as("lab/blend"):
@@ -88,12 +87,15 @@ def lab_setup(cfg: DictConfig) -> LabSetup:
 
 @contextlib.contextmanager
 def _refused_as(group: str) -> Iterator[None]:
-    """Raise a lab's ValueError or TypeError (a value outside its range, an unknown field) as a ConfigError that
-    names the config ``group``."""
+    """Raise a lab's ValueError, TypeError or KeyError (a value outside its range, an unknown or a missing field)
+    as a ConfigError that names the config ``group``."""
     try:
         yield
     except DiffstirError:
         raise
+    except KeyError as error:
+        raise ConfigError(f"{group}: no setting {error.args[0]!r} (conf/{group}/ shows each group's settings)"
+                          ) from error
     except (TypeError, ValueError) as error:
         raise ConfigError(f"{group}: {error}") from error
 
