@@ -227,20 +227,24 @@ def _waveform_estimate(readings: dict[float, np.ndarray], measured: np.ndarray, 
     ln η (``apparent.with_baseline``: b's prior N(0, ``resolution``²)) from the size's estimate ``log_eta``, in the
     bracket each step lands in, until a step moves ln η by less than ``CONVERGED``."""
     etas = np.array(sorted(readings))
-    x = np.log(etas)
+    lowest, highest = math.log(etas[0]) - MAX_STEP, math.log(etas[-1]) + MAX_STEP
     for _ in range(GAUSS_NEWTON_STEPS):
-        j = _bracket(x, log_eta)
-        low, high = (readings[etas[i]][mask] for i in (j - 1, j))
-        per_viscosity = (high - low) / (etas[j] - etas[j - 1])  # d p / d η [N/(Pa·s)]
-        p = low + (math.exp(log_eta) - etas[j - 1]) * per_viscosity
+        p, per_viscosity = _interpolated(readings, etas, mask, log_eta)
         step = with_baseline(math.exp(log_eta) * per_viscosity, measured - p, log_eta, resolution, p,
                              model_error, inertial_error)
-        moved = float(np.clip(step[0], x[0] - MAX_STEP, x[-1] + MAX_STEP))
+        moved = float(np.clip(step[0], lowest, highest))
         converged = abs(moved - log_eta) < CONVERGED
         log_eta, (log_std, model_log_std, baseline) = moved, step[1:]
         if converged:
             break
-    j = _bracket(x, log_eta)
+    return log_eta, log_std, model_log_std, baseline, _interpolated(readings, etas, mask, log_eta)[0]
+
+
+def _interpolated(readings: dict[float, np.ndarray], etas: np.ndarray, mask: np.ndarray, log_eta: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The rungs' readings p [N] on ``mask`` at ln η, linear in η between the two of ascending ``etas`` [Pa·s] that
+    bracket it (the end two beyond them), and d p / d η [N/(Pa·s)]."""
+    j = _bracket(np.log(etas), log_eta)
     low, high = (readings[etas[i]][mask] for i in (j - 1, j))
-    return (log_eta, log_std, model_log_std, baseline,
-            low + (math.exp(log_eta) - etas[j - 1]) * (high - low) / (etas[j] - etas[j - 1]))
+    per_viscosity = (high - low) / (etas[j] - etas[j - 1])
+    return low + (math.exp(log_eta) - etas[j - 1]) * per_viscosity, per_viscosity
