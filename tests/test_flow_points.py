@@ -75,8 +75,8 @@ def test_the_profile_interval_of_a_law_linear_in_ln_eta_is_its_covariance_interv
 
 
 def test_the_profile_holds_a_cross_fluid_where_the_curvature_of_a_law_through_its_points_misleads():
-    # four windows of a Cross fluid (η0 = 2 Pa·s, η∞ = 0.02 Pa·s, λ = 1 s, n = 0.7) as the plan's stir read them on
-    # the benchmark's 2-D truth (seed 2): the Cross law passes through the four points, and the curvature there
+    # four windows of a Cross fluid (η0 = 2 Pa·s, η∞ = 0.02 Pa·s, λ = 1 s, n = 0.7) off the plan's stir on a 2-D
+    # truth, standard errors 0.05-0.07: the Cross law passes through the four points, and the curvature there
     # gives η∞ [0.13, 0.49] Pa·s and λ [0.22, 0.43] s, which miss the truth; the profile, along which the other
     # parameters follow, holds all four and names none identified
     rates = np.array([0.901, 1.802, 3.603, 14.412])
