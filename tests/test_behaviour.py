@@ -292,6 +292,24 @@ def test_a_falling_index_leaves_the_yield_stress_to_the_yield_tests():
     assert plateau.with_slope_estimate(SlopeEstimate(-0.8, math.inf)) is plateau
 
 
+def test_a_windows_baseline_does_not_count_as_noise():
+    # readings with a baseline b = 4 q on white noise σ: the step estimates b, and the noise's error of ln η is the
+    # least-squares one of σ with b a parameter under its prior, not of the larger spread b leaves before the step
+    rng = np.random.default_rng(1)
+    readings = 0.02 * (1.0 + 0.3 * np.sin(np.linspace(0.0, 6.0, 400)))  # N
+    sigma, q = 1e-4, 5e-4  # N
+    noise = sigma * rng.normal(size=readings.size)
+    _, noise_std, _, baseline = with_baseline(readings, noise + 4 * q, 0.0, q, readings, 0.0)
+    design = np.column_stack([readings, np.ones_like(readings)])
+    precision = design.T @ design / sigma**2 + np.diag([0.0, 1.0 / q**2])
+    expected = math.sqrt(np.linalg.inv(precision)[0, 0])
+    # s² from N = 400 white samples: its relative error is √(2/N) = 7 %, N_eff's ~ 10 %; 3σ of both
+    assert noise_std == pytest.approx(expected, rel=0.4)
+    assert baseline == pytest.approx(4 * q, abs=4 * math.sqrt(np.linalg.inv(precision)[1, 1]))
+    # with b read as noise its variance would be (4q)²/σ² = 400 times too large: ln η's error 20 times too wide
+    assert noise_std < 2 * expected
+
+
 def test_window_interval_carries_the_simulators_force_error():
     # a drag p = c η^e read with noise: a relative force error σ_m of the simulator moves ln η by σ_m / e whatever
     # the noise (the readings' Jacobian d p / d ln η is e p); the noise's own error is the least-squares one
@@ -301,10 +319,11 @@ def test_window_interval_carries_the_simulators_force_error():
     for elasticity in (0.1, 0.5, 1.0):
         _, noise_std, model_std, _ = with_baseline(elasticity * readings, residuals, 0.0, 0.0, readings, 0.063)
         assert model_std == pytest.approx(0.063 / elasticity, rel=1e-9)
-        s2 = residuals @ residuals / (residuals.size - 1)
-        n_eff = min(effective_samples(residuals), residuals.size)
-        information = elasticity**2 * readings @ readings  # J·J [N²]
-        assert noise_std == pytest.approx(math.sqrt(s2 * residuals.size / n_eff / information), rel=1e-9)
+        jacobian = elasticity * readings
+        left = residuals - jacobian * (jacobian @ residuals) / (jacobian @ jacobian)  # after the step
+        s2 = left @ left / (residuals.size - 1)
+        n_eff = min(effective_samples(left), residuals.size)
+        assert noise_std == pytest.approx(math.sqrt(s2 * residuals.size / n_eff / (jacobian @ jacobian)), rel=1e-9)
     assert with_baseline(readings, residuals, 0.0, 0.0, readings, 0.0)[2] == 0.0
     # the inertial part p − J = (1 − e) p errs by σ_i: ln η moves by σ_i (1 − e) / e more, in quadrature
     for elasticity in (0.1, 0.5, 1.0):

@@ -10,8 +10,9 @@ on the fit's Jacobian J and residuals r:
 
     [ω AᵀA + diag(0, 1/q²)] (Δ ln η, b) = ω Aᵀ r,   A = [J, 1],   ω = N_eff / (N s²),
 
-whose inverse matrix is the covariance; s² = RSS/(N − 1) and N_eff (``fitting.uncertainty``) come from the
-Newtonian fit's residuals. Where the reading cannot tell a baseline from the drag, the interval of ln η widens.
+whose inverse matrix is the covariance; s² = RSS/(N − 2) and N_eff (``fitting.uncertainty``) come from the
+residuals r − A (Δ ln η, b) the step leaves, by passes from r until ω settles (a baseline is not noise). Where
+the reading cannot tell a baseline from the drag, the interval of ln η widens.
 
 The simulator's own force error (``fitting.uncertainty``), a relative error σ_m of the simulated readings p and a
 relative error σ_i of their inertial part p − J (J = dp/d ln η, the readings' viscous part), moves ln η by the same
@@ -51,6 +52,10 @@ from .windows import SpeedWindow
 #: Ladder around a previous window's viscosity: a factor 4 each way brackets a change of speed by 2-4 for any
 #: flow index between 0 and 2.
 LADDER_FACTOR = 4.0
+
+#: Passes of the baseline step at most, and the relative change of its noise weight ω that ends them: a baseline
+#: of several q on a window whose drag is nearly constant settles in about five.
+NOISE_PASSES, NOISE_CONVERGED = 20, 1e-6
 
 #: A Newtonian fit within this of ln ``viscosity_cap`` [1] (0.1 % in η) ends at the cap, its upper bound.
 CAP_TOLERANCE = 1e-3
@@ -236,23 +241,34 @@ def with_baseline(jacobian: np.ndarray, residuals: np.ndarray, log_eta: float, r
     ``residuals`` measured − fitted [N], ``log_eta`` the fit's ln η, ``resolution`` q [N] (0: no baseline),
     ``readings`` the simulated readings p [N], ``model_error`` their relative error σ_m [1] and
     ``inertial_error`` the relative error σ_i of their inertial part p − J [1]."""
-    n = residuals.size
-    weight = min(effective_samples(residuals), float(n)) / n / max(float(residuals @ residuals) / max(n - 1, 1),
-                                                                    1e-300)
     design = np.column_stack([jacobian, np.ones_like(jacobian)])
-    precision = weight * design.T @ design
-    if resolution > 0:
-        precision[1, 1] += 1.0 / resolution**2
-    else:
-        precision[1, :], precision[:, 1], precision[1, 1] = 0.0, 0.0, 1.0  # b held at 0
     keep = np.array([1.0, 1.0 if resolution > 0 else 0.0])
-    rhs = weight * design.T @ residuals * keep
-    try:
-        covariance = np.linalg.inv(precision)
-    except np.linalg.LinAlgError:  # a reading that does not change with η: nothing to estimate
-        return log_eta, math.inf, math.inf, 0.0
+    weight = _noise_weight(residuals, 1 + int(keep[1]))
+    for _ in range(NOISE_PASSES):  # the noise's variance from the residuals the step leaves: b is not noise
+        precision = weight * design.T @ design
+        if resolution > 0:
+            precision[1, 1] += 1.0 / resolution**2
+        else:
+            precision[1, :], precision[:, 1], precision[1, 1] = 0.0, 0.0, 1.0  # b held at 0
+        rhs = weight * design.T @ residuals * keep
+        try:
+            covariance = np.linalg.inv(precision)
+        except np.linalg.LinAlgError:  # a reading that does not change with η: nothing to estimate
+            return log_eta, math.inf, math.inf, 0.0
+        previous, weight = weight, _noise_weight(residuals - design @ (covariance @ rhs), 1 + int(keep[1]))
+        if abs(weight - previous) <= NOISE_CONVERGED * weight:
+            break
+    weight = previous  # the one the covariance was computed with
     step = covariance @ rhs
     shift = covariance @ (weight * design.T @ readings * keep)  # d(ln η, b) per unit relative error of p
     inertial = covariance @ (weight * design.T @ (readings - jacobian) * keep)  # ... of p's inertial part
     return (log_eta + float(step[0]), math.sqrt(max(float(covariance[0, 0]), 0.0)),
             math.hypot(model_error * float(shift[0]), inertial_error * float(inertial[0])), float(step[1]))
+
+
+def _noise_weight(residuals: np.ndarray, estimated: int) -> float:
+    """ω = N_eff / (N s²) [1/N²] of ``residuals`` [N] left by a fit of ``estimated`` parameters,
+    s² = RSS / (N − ``estimated``)."""
+    n = residuals.size
+    variance = float(residuals @ residuals) / max(n - estimated, 1)
+    return min(effective_samples(residuals), float(n)) / n / max(variance, 1e-300)
