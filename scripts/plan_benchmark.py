@@ -88,10 +88,30 @@ PROGRAMMES = {"planned": CONF / "lab" / "programme" / "paper_plan.yaml",
               "example": CONF / "lab" / "programme" / "example.yaml"}
 
 
-def use_planned(path: Path) -> None:
+#: ``SimConfig`` settings that replace those of the truth's and the analyses' simulators (``--sim``).
+SIM_SETTINGS: dict = {}
+
+
+def use_settings(path: Path, sim_settings: dict) -> None:
     """Make ``path`` (a ``lab/programme`` file, such as ``diffstir-plan``'s ``lab/programme/planned.yaml``) the
-    planned cases' programme in this process; a pool's processes run it first (``in_pool``)."""
+    planned cases' programme and ``sim_settings`` the simulators' changed settings in this process; a pool's
+    processes run it first (``in_pool``)."""
     PROGRAMMES["planned"] = path
+    SIM_SETTINGS.clear()
+    SIM_SETTINGS.update(sim_settings)
+
+
+def simulator(path: str):
+    """The ``SimConfig`` of ``conf/<path>`` with the ``--sim`` settings."""
+    return sim(path).replace(**SIM_SETTINGS)
+
+
+def sim_setting(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` of ``--sim``: a ``SimConfig`` field and its YAML value."""
+    key, _, value = text.partition("=")
+    if not key or not _:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE, such as viscous_solver=implicit")
+    return key, yaml.safe_load(value)
 
 
 def fluid_named(name: str) -> Fluid:
@@ -126,7 +146,7 @@ def truth_identity(fluid: Fluid, kind: str) -> dict:
     """What a truth simulation of ``fluid`` stirred by the ``kind`` programme is made from (the truth settings less
     their device): a stored truth is read back only where this is unchanged."""
     spec, _ = programme(PROGRAMMES[kind])
-    config = {k: v for k, v in asdict(sim("lab/sim/truth2d.yaml")).items() if k != "device"}
+    config = {k: v for k, v in asdict(simulator("lab/sim/truth2d.yaml")).items() if k != "device"}
     return json.loads(json.dumps({"fluid": {"name": fluid.name, "density": fluid.density, "law": fluid.law},
                                   "programme": spec, "sim": config, "rig": asdict(Rig())}))
 
@@ -156,7 +176,7 @@ def stored_truth(path: Path, fluid_name: str, kind: str) -> tuple[TruthSimulatio
         raise SystemExit(f"{path}: made from other settings than the current {fluid_name} {kind} truth; move it "
                          f"away to simulate it again")
     _, trajectory = programme(PROGRAMMES[kind])
-    truth = TruthSimulation(fluid, trajectory, Rig(), sim("lab/sim/truth2d.yaml"), HiddenPhysicsSpec(), times,
+    truth = TruthSimulation(fluid, trajectory, Rig(), simulator("lab/sim/truth2d.yaml"), HiddenPhysicsSpec(), times,
                             force, made["dt"], made["discretisation"], made["per_unit_length"], made["slice_factor"])
     return truth, made["seconds"]
 
@@ -171,7 +191,7 @@ def truth_of(fluid_name: str, kind: str, store: Path | None) -> tuple[TruthSimul
         return found
     _, trajectory = programme(PROGRAMMES[kind])
     clock = time.perf_counter()
-    truth = simulate_truth(fluid_named(fluid_name), trajectory, sim_config=sim("lab/sim/truth2d.yaml"))
+    truth = simulate_truth(fluid_named(fluid_name), trajectory, sim_config=simulator("lab/sim/truth2d.yaml"))
     seconds = time.perf_counter() - clock
     if path is not None:
         store_truth(path, truth, seconds, truth_identity(fluid_named(fluid_name), kind))
@@ -230,8 +250,8 @@ def planned_case(recording, config, workers: int) -> dict:
 
 def single_case(recording, workers: int) -> dict:
     started = time.perf_counter()
-    result = identify(recording, config=sim("sim/slice2d.yaml"), coarse=sim("sim/coarse2d.yaml"), fit=FitSettings(),
-                      progress=False, workers=workers)
+    result = identify(recording, config=simulator("sim/slice2d.yaml"), coarse=simulator("sim/coarse2d.yaml"),
+                      fit=FitSettings(), progress=False, workers=workers)
     summary = result.summary()
     return {"class": summary["family"]["class"], "selected": summary["selection"]["selected"],
             "seconds": time.perf_counter() - started}
@@ -244,11 +264,12 @@ def case_row(fluid_name: str, kind: str, seed: int, workers: int, store: Path | 
     family = truth_family(fluid.law, plan_band())
     truth, truth_seconds = truth_of(fluid_name, kind, store)
     recording = read_truth(truth, sensor_preset("paper"), seed=seed, name=f"{fluid_name}_{kind}").recording
-    case = planned_case(recording, sim("sim/slice2d.yaml"), workers) if kind == "planned" else single_case(
+    case = planned_case(recording, simulator("sim/slice2d.yaml"), workers) if kind == "planned" else single_case(
         recording, workers)
     row = {"fluid": fluid_name, "programme": kind, "seed": seed, "truth_class": family,
            "segments": programme(PROGRAMMES[kind])[0]["segments"],
-           "right": case["class"] == family, "truth_law": fluid.law, "truth_seconds": truth_seconds, **case,
+           "right": case["class"] == family, "truth_law": fluid.law, "truth_seconds": truth_seconds,
+           "sim": dict(SIM_SETTINGS), **case,
            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="minutes"), "machine": machine()}
     if kind == "planned":
         row["coverage"] = coverage(fluid.law, case["laws"])
@@ -279,8 +300,8 @@ def in_pool(function, tasks: list, jobs: int):
         yield from map(function, tasks)
         return
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    pool = multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1, initializer=use_planned,
-                                                     initargs=(PROGRAMMES["planned"],))
+    pool = multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1, initializer=use_settings,
+                                                     initargs=(PROGRAMMES["planned"], dict(SIM_SETTINGS)))
     try:
         yield from pool.imap_unordered(function, tasks)
     finally:
@@ -308,6 +329,9 @@ def main() -> None:
     parser.add_argument("--planned", type=Path, default=PROGRAMMES["planned"],
                         help="the planned cases' programme: a lab/programme file, such as diffstir-plan's "
                              "OUT/lab/programme/planned.yaml (default: the default plan's)")
+    parser.add_argument("--sim", nargs="+", type=sim_setting, default=[], metavar="KEY=VALUE",
+                        help="settings of the truth's and the analyses' simulators, such as viscous_solver=implicit "
+                             "viscosity_cap=200 (give the cases their own --truths and --out)")
     parser.add_argument("--workers", type=int, default=2, help="processes of one analysis (1 with --jobs > 1)")
     parser.add_argument("--jobs", type=int, default=1, help="cases (or truths) run side by side")
     parser.add_argument("--truths", type=Path, help="folder of stored truth simulations, read and added to")
@@ -317,7 +341,11 @@ def main() -> None:
     parser.add_argument("--merge", nargs="+", type=Path, default=[], metavar="FILE",
                         help="add the cases of these JSONs that --out lacks")
     args = parser.parse_args()
-    use_planned(args.planned.resolve())
+    use_settings(args.planned.resolve(), dict(args.sim))
+    try:
+        simulator("lab/sim/truth2d.yaml")
+    except (TypeError, ValueError) as error:
+        parser.error(f"--sim: {error}")
     pairs = [(f, k) for f in args.fluids for k in args.programmes]
     if args.simulate_only:
         if args.truths is None:

@@ -13,14 +13,18 @@ speed raised per rollout to 3 % compression from 1 m/s, J relaxed towards the gr
 replaced on 2026-11-24 ("former": APIC transfers, each particle's J from its own divergence, a fixed 1 m/s), and
 the compressible slice with boundary particles carrying the fluid's pressure into the solids ("wall pressure",
 sim.wall_pressure=true, diffstir/mpm/walls.py); the stir check also the compressible slice at 1 % and 0.3 %
-compression. --numerics runs only the numerics whose labels start with the given words; --set KEY=VALUE sets
-SimConfig fields on each of them (e.g. dt_max=0.004 for a longer step).
+compression; "implicit" is the projection with the shear stress solved implicitly (sim.viscous_solver=implicit,
+diffstir/mpm/implicit_viscosity.py). --numerics runs only the numerics whose labels start with the given words;
+--set KEY=VALUE sets SimConfig fields on each of them (e.g. dt_max=0.004 for a longer step).
 - couette: rod spinning at the cup's centre, 2-D, mu = 1 Pa s, Omega = 2 rad/s (Re = 0.75); steady torque per unit
   length against 4 pi mu Omega a^2 b^2 / (b^2 - a^2).
 - power_law: the same with a power-law fluid, K = 1 Pa s^n, n = 0.6, Omega = 1 rad/s (Re = 0.6 at the rod), against
   2 pi K a^2 [2 Omega / (n (1 - (a/b)^(2/n)))]^n.
 - translate: rod translating through the cup's centre at Re = rho U 2a / mu = 0.1 (mu = 0.5, 1 and 3 Pa s), 2 mm
   either side of it; steady force per unit length against 4 pi mu U / [ln(b/a) - (b^2 - a^2)/(b^2 + a^2)].
+- thick: the translating rod at U = 20 mm/s in 20 and 100 Pa s fluids, the viscosity cap raised to the fluid's,
+  projection and implicit only (not run by default): the explicit shear stress's step shortens with the viscosity,
+  the implicit one's does not; each row says the step, its substeps and the wall time.
 - buoyancy2d: the rod held still 15 mm off centre under a body force of 1 m/s² along x (standing in for gravity,
   which a horizontal slice lacks); steady force per unit length against -rho g pi a^2 (a sound speed of 2 m/s).
 - convergence: the Newtonian and power-law Couette checks and the 0.5 and 1 Pa s translating rod, projection and
@@ -73,6 +77,7 @@ import math
 import os
 import platform
 import sys
+import time
 from functools import partial
 from pathlib import Path
 
@@ -100,7 +105,9 @@ COMPRESSIBLE = fitting_default().replace(pressure="compressible")
 FORMER = COMPRESSIBLE.replace(flip=0.0, volume_relaxation=0.0, settle_time=0.0, compressibility=None, sound_speed=1.0)
 PROJECTION = fitting_default()
 WALL_PRESSURE = COMPRESSIBLE.replace(wall_pressure=True)
-CONFIGS = {"compressible": COMPRESSIBLE, "former": FORMER, "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
+IMPLICIT = PROJECTION.replace(viscous_solver="implicit")
+CONFIGS = {"compressible": COMPRESSIBLE, "former": FORMER, "projection": PROJECTION, "wall pressure": WALL_PRESSURE,
+           "implicit": IMPLICIT}
 STIR_CONFIGS = {"compressible": COMPRESSIBLE, "compressible at 1 %": COMPRESSIBLE.replace(compressibility=0.01),
                 "compressible at 0.3 %": COMPRESSIBLE.replace(compressibility=0.003), "former": FORMER,
                 "projection": PROJECTION, "wall pressure": WALL_PRESSURE}
@@ -152,6 +159,21 @@ def translating(config: SimConfig, label: str, mu: float = 1.0) -> tuple[str, fl
     with torch.no_grad():
         result = sim(translate((speed, 0.0), duration=0.004 / speed, start=(-0.002, 0.0)))
     return (f"translating rod drag, 2-D, {label}, mu = {mu:g} Pa s, U = {speed * 1e3:.3g} mm/s [N/m]",
+            -steady(result.force[:, 0]), translating_rod_force(mu, speed, A, B))
+
+
+def thick(config: SimConfig, label: str, mu: float, speed: float = 0.02) -> tuple[str, float, float]:
+    """The rod translating through the cup's centre at ``speed`` [m/s] in a fluid of ``mu`` [Pa s] at or above the
+    default viscosity cap, which is raised to it; the label gives the step, its substeps and the wall time."""
+    sim = StirringSimulator(Newtonian(eta=mu), RIG, config.replace(viscosity_cap=max(config.viscosity_cap, mu)),
+                            density=1000.0)
+    trajectory = translate((speed, 0.0), duration=0.004 / speed, start=(-0.002, 0.0))
+    dt = sim.time_step(trajectory)
+    clock = time.perf_counter()
+    with torch.no_grad():
+        result = sim(trajectory)
+    return (f"translating rod drag, 2-D, {label}, mu = {mu:g} Pa s, U = {speed * 1e3:.3g} mm/s, "
+            f"{dt * 1e3:.3g} ms step in {sim.substeps(trajectory, dt)}, {time.perf_counter() - clock:.1f} s [N/m]",
             -steady(result.force[:, 0]), translating_rod_force(mu, speed, A, B))
 
 
@@ -408,6 +430,8 @@ def main() -> None:
                                 for dx in (0.005, 0.0025, 0.002, 0.0025 / 1.5, 0.00125)
                                 for check in (couette, power_law_couette, partial(translating, mu=0.5),
                                               translating)],
+        "thick": lambda: [thick(config, label, mu) for mu in (20.0, 100.0) for label, config in configs.items()
+                          if label in ("projection", "implicit")],
         "rest3d": lambda: rest3d(args.rest_time),
     }
     closed = [name for name in args.checks if name in checks]

@@ -379,7 +379,8 @@ def test_newtonian_lab_fluid_is_newtonian_and_its_viscosity_is_recovered(lab_rec
 def test_a_fluid_thicker_than_the_viscosity_cap_is_refused_naming_the_cap(lab_recordings):
     """The 0.5 Pa·s fluid fitted by a simulator capped at 0.2 Pa·s: every window's Newtonian fit ends at the cap,
     above which the reading no longer responds to η, so no window is resolved, and the refusal says why."""
-    refusal = r"\(recording@[^:]+: at the viscosity cap, .*\); raise sim.viscosity_cap \(0.2 Pa s\): the windows at it"
+    refusal = (r"\(recording@[^:]+: at the viscosity cap, .*\); raise sim.viscosity_cap \(0.2 Pa s\) with "
+               r"sim.viscous_solver=implicit, whose step does not shorten with the viscosity: the windows at it")
     with pytest.raises(RecordingError, match=refusal):
         characterise([lab_recordings["newtonian"]], config=FAST.replace(viscosity_cap=0.2),
                      settings=BehaviourSettings(iterations=2, joint_models=[], replicates=50))

@@ -65,7 +65,13 @@ def test_a_truth_of_the_default_plan_is_refused_for_another_plans_programme(tmp_
     other.write_text(json.dumps({**spec, "segments": [{**spec["segments"][0], "speed": 0.005},
                                                       *spec["segments"][1:]]}))
     monkeypatch.setitem(bench.PROGRAMMES, "planned", bench.PROGRAMMES["planned"])
-    bench.use_planned(other)
+    monkeypatch.setattr(bench, "SIM_SETTINGS", {})
+    bench.use_settings(other, {})
     assert bench.programme(bench.PROGRAMMES["planned"])[0]["segments"][0]["speed"] == 0.005
+    with pytest.raises(SystemExit, match="bingham_planned.npz: made from other settings"):
+        bench.stored_truth(path, "bingham", "planned")
+    # nor for other simulator settings (--sim)
+    bench.use_settings(bench.CONF / "lab" / "programme" / "paper_plan.yaml", {"viscous_solver": "implicit"})
+    assert bench.simulator("lab/sim/truth2d.yaml").viscous_solver == "implicit"
     with pytest.raises(SystemExit, match="bingham_planned.npz: made from other settings"):
         bench.stored_truth(path, "bingham", "planned")

@@ -135,8 +135,10 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
             capped = "at the viscosity cap" in states
             advice = ["stir faster or at more speeds"] if "not resolved" in states or not capped else []
             if capped:
-                advice.append(f"raise sim.viscosity_cap ({config.viscosity_cap:g} Pa s): the windows at it read a "
-                              "fluid at least that thick")
+                solver = "" if config.viscous_solver == "implicit" else (
+                    " with sim.viscous_solver=implicit, whose step does not shorten with the viscosity")
+                advice.append(f"raise sim.viscosity_cap ({config.viscosity_cap:g} Pa s){solver}: the windows at it "
+                              "read a fluid at least that thick")
             raise RecordingError("behaviour: fewer than two speeds whose drag the sensor resolves (" + ", ".join(
                 f"{p.window.label}: {state}" for p, state in zip(points, states)) + "); " + "; ".join(advice))
         k_s = float(np.exp(np.mean([np.log(p.metzner_otto) for p in used])))

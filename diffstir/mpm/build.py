@@ -17,6 +17,7 @@ from ..rig import Rig
 from .boundaries import BAND, RodPose, RodWindow, cup_sdf, ghost_band, is_solid, rod_sdf, rod_shape
 from .config import SimConfig
 from .grid import Grid, flat_index
+from .implicit_viscosity import StiffnessPattern
 from .materials import deviatoric_rate_of_strain
 from .packing import FINE, cup_solid_mass, rod_fill_points
 from .projection import CellMatrices
@@ -89,6 +90,8 @@ def build_scene(rig: Rig, config: SimConfig, density: float) -> Scene:
         walls=(WallParticles.of(grid, cup, rod, spacing, rod_height, offset_index, bounds) if config.wall_pressure
                else None),
         fused=use_fused(config.kernels, device),
+        viscous_stiffness=(StiffnessPattern.of(cells, grid.num_nodes) if config.viscous_solver == "implicit"
+                           else None),
     )
 
 
@@ -140,8 +143,9 @@ def settled_state(scene: Scene, rig: Rig, config: SimConfig, density: float, pos
     state = seed_particles(scene, rig, config, pose)
     if config.settle_time <= 0:
         return state
-    # a rollout may have raised the bulk modulus; a projection's fluid settles as the compressible one
-    scene = replace(scene, bulk_modulus=density * config.sound_speed**2, cell_matrices=None)
+    # a rollout may have raised the bulk modulus; a projection's fluid settles as the compressible one, with an
+    # explicit shear stress whatever the rollout's
+    scene = replace(scene, bulk_modulus=density * config.sound_speed**2, cell_matrices=None, viscous_stiffness=None)
     key = _settle_key(rig, config, density, pose)
     path = cache_root(cache_dir) / "settled" / f"{key}.pt"
     if path.exists():

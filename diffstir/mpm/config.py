@@ -66,6 +66,12 @@ class SimConfig:
             that runs many substeps: the 2-D rod translating through a 20 Pa·s fluid reads 0.924, 0.903 and 0.844 of
             its closed-form drag at steps of 1, 2 and 4 ms (15, 29 and 57 substeps on 2.5 mm cells;
             docs/validation.md). None: no bound.
+        viscous_solver: ``"explicit"``: the shear stress advances the velocity explicitly, in the step or its
+            ``viscous_substeps``, whose count grows with the viscosity; ``"implicit"``: one backward-Euler solve per
+            step with each cell's viscosity held at the step's start (``diffstir.mpm.implicit_viscosity``), stable
+            at any viscosity, so that neither the step nor its cost depends on it: a fluid thicker than the default
+            ``viscosity_cap`` is simulated by raising the cap. Materials with a viscosity (``KelvinVoigt``: every
+            rheology law) only.
         dt_max: the largest time step [s].
         dt: a fixed time step [s]; None chooses it from the limits above at the start of each rollout.
         headroom: grid space above the fluid's surface at rest [m], for the surface's rise while stirring.
@@ -100,6 +106,7 @@ class SimConfig:
     wall_pressure: bool = False
     viscous_substeps: bool = True
     max_substeps: int | None = None
+    viscous_solver: Literal["explicit", "implicit"] = "explicit"
     dt_max: float = 1e-3
     dt: float | None = None
     headroom: float = 0.02
@@ -124,6 +131,8 @@ class SimConfig:
         if self.max_substeps is not None and not (isinstance(self.max_substeps, int) and self.max_substeps >= 1):
             raise ValueError(f"sim.max_substeps = {self.max_substeps!r}; expected a whole number >= 1, or null for no "
                              "bound")
+        if self.viscous_solver not in ("explicit", "implicit"):
+            raise ValueError(f"sim.viscous_solver = {self.viscous_solver!r}; expected 'explicit' or 'implicit'")
         if self.dt is not None and not self.dt > 0:
             raise ValueError(f"sim.dt = {self.dt!r}; expected a positive time step in s, or None")
         if self.dtype not in ("float32", "float64"):
@@ -194,13 +203,14 @@ RUN_SETTINGS = ("device", "kernels", "compile", "checkpoint_every")
 
 #: The settings of ``SimConfig.numerics``. A record that lacks some of them was made by numerics that had then the
 #: values of ``FORMER_NUMERICS``: APIC transfers, each particle's own J, a fixed sound speed, no boundary particles,
-#: the shear stress's explicit limit setting the step (no substeps), and the 2 ms largest step that the coarse stage,
-#: the only estimator such records describe, has always had (conf/sim/coarse2d.yaml). A record made with substeps
+#: the shear stress's explicit limit setting the step (no substeps, no implicit solve), and the 2 ms largest step
+#: that the coarse stage, the only estimator such records describe, has always had (conf/sim/coarse2d.yaml). A record made with substeps
 #: before they were recorded reads as made without them, so a rectifier trained on it is not applied.
 NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure",
-            "wall_pressure", "viscous_substeps", "max_substeps", "dt_max")
+            "wall_pressure", "viscous_substeps", "max_substeps", "viscous_solver", "dt_max")
 FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible",
-                   "wall_pressure": False, "viscous_substeps": False, "max_substeps": None, "dt_max": 0.002}
+                   "wall_pressure": False, "viscous_substeps": False, "max_substeps": None,
+                   "viscous_solver": "explicit", "dt_max": 0.002}
 
 #: The fit's fine stage (``conf/sim/slice2d.yaml``; a test holds them equal): the 2-D slice on 2.5 mm cells, its
 #: pressure solved for incompressibility, a 2 ms step of at most 15 viscous substeps.

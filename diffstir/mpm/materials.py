@@ -117,6 +117,11 @@ class KelvinVoigt(nn.Module):
         eta = self.law(shear_rate(dev_D)).clamp(max=viscosity_cap)
         return 2.0 * eta[:, None, None] * dev_D
 
+    def viscosity_of(self, grad_v: Tensor, viscosity_cap: float) -> Tensor:
+        """The apparent viscosity η(γ̇) [Pa·s], (K,), of cells with velocity gradients ``grad_v`` [1/s], (K, d, d),
+        at most ``viscosity_cap``: what an implicit step holds over the step (``implicit_viscosity``)."""
+        return self.law(shear_rate(deviatoric_rate_of_strain(grad_v))).clamp(max=viscosity_cap)
+
     def max_viscosity(self, shear_rate_max: float, dt: float | None = None) -> float:
         """Upper bound of the apparent viscosity up to ``shear_rate_max`` [Pa·s], for the time-step limit."""
         return float(self.law.max_viscosity(shear_rate_max))

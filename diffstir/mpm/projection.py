@@ -184,30 +184,37 @@ class Projection:
         """A on the pressure cells only, in their order (detached, float64, CPU): L = D E_lin, with E_lin the
         identity but on the ghosts' active targets, whose rows hold W_qc G_q."""
         d = self.cells.grad.shape[1]
-        n_dof = self.num_nodes * d
         kept = np.flatnonzero(_np(self.pressure_cell) > 0)
-        rows, cols, values = [], [], []
-        ghost = np.zeros(n_dof, dtype=bool)
-        for op in (self.cup, self.rod):
-            target, source, weight, matrix = (_np(t) for t in (op.target, op.source, op.weight, op.matrix))
-            if op.active is not None:
-                active = _np(op.active).astype(bool)
-                target, source, weight, matrix = target[active], source[active], weight[active], matrix[active]
-            entries = weight[:, None, :, None] * matrix[:, :, None, :]  # (Q, a, K, b): W_qc G_q,ab
-            target_dof = target[:, None] * d + np.arange(d)
-            rows.append(np.broadcast_to(target_dof[:, :, None, None], entries.shape).ravel())
-            cols.append(np.broadcast_to((source[:, :, None] * d + np.arange(d))[:, None], entries.shape).ravel())
-            values.append(entries.ravel())
-            ghost[target_dof.ravel()] = True
-        fluid_dof = np.flatnonzero(~ghost)
-        extension = sparse.csr_matrix((np.concatenate([*values, np.ones(len(fluid_dof))]),
-                                       (np.concatenate([*rows, fluid_dof]), np.concatenate([*cols, fluid_dof]))),
-                                      shape=(n_dof, n_dof))
+        extension = extension_matrix(self.cup, self.rod, self.num_nodes, d)
         divergence, laplacian_squared = self.matrices.on(kept)
         constraint = divergence @ extension
         weighted = constraint.copy()
         weighted.data *= np.repeat(_np(self.mobility[:, 0]), d)[weighted.indices]
         return (weighted @ constraint.T + self.stabilisation * laplacian_squared).tocsr()
+
+
+def extension_matrix(cup: GhostOperator, rod: GhostOperator, num_nodes: int, d: int) -> sparse.csr_matrix:
+    """E_lin, the ghosts' linear map of node velocities (num_nodes·d, num_nodes·d), detached, float64: the identity
+    but on the active targets of ``cup`` and ``rod``, whose rows hold W_qc G_q (their sources carry fluid, never a
+    ghost, so the two maps compose as one)."""
+    n_dof = num_nodes * d
+    rows, cols, values = [], [], []
+    ghost = np.zeros(n_dof, dtype=bool)
+    for op in (cup, rod):
+        target, source, weight, matrix = (_np(t) for t in (op.target, op.source, op.weight, op.matrix))
+        if op.active is not None:
+            active = _np(op.active).astype(bool)
+            target, source, weight, matrix = target[active], source[active], weight[active], matrix[active]
+        entries = weight[:, None, :, None] * matrix[:, :, None, :]  # (Q, a, K, b): W_qc G_q,ab
+        target_dof = target[:, None] * d + np.arange(d)
+        rows.append(np.broadcast_to(target_dof[:, :, None, None], entries.shape).ravel())
+        cols.append(np.broadcast_to((source[:, :, None] * d + np.arange(d))[:, None], entries.shape).ravel())
+        values.append(entries.ravel())
+        ghost[target_dof.ravel()] = True
+    fluid_dof = np.flatnonzero(~ghost)
+    return sparse.csr_matrix((np.concatenate([*values, np.ones(len(fluid_dof))]),
+                              (np.concatenate([*rows, fluid_dof]), np.concatenate([*cols, fluid_dof]))),
+                             shape=(n_dof, n_dof))
 
 
 def _np(t: Tensor) -> np.ndarray:

@@ -9,6 +9,7 @@ from torch import Tensor
 from ..rig import Cup
 from .boundaries import GhostBand, RodShape, RodWindow
 from .grid import Grid
+from .implicit_viscosity import StiffnessPattern
 from .projection import CellMatrices
 from .viscous import CellStencil
 from .walls import WallParticles
@@ -54,6 +55,8 @@ class Scene:
         walls: boundary particles in the solids that carry the fluid's pressure (``walls.WallParticles``); None:
             the solids' nodes see the fluid's pressure only.
         fused: whether the particle-grid transfers run as the fused C++ kernels (``transfer``) or as torch ops.
+        viscous_stiffness: with an implicit shear stress (``SimConfig.viscous_solver``), the grid's viscous
+            stiffness pattern (``implicit_viscosity.StiffnessPattern``); None: explicit.
     """
 
     grid: Grid
@@ -86,6 +89,7 @@ class Scene:
     cell_matrices: CellMatrices | None = None
     walls: WallParticles | None = None
     fused: bool = False
+    viscous_stiffness: StiffnessPattern | None = None
 
     @property
     def dim(self) -> int:

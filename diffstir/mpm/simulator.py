@@ -76,6 +76,9 @@ class StirringSimulator(nn.Module):
         self.material = as_material(fluid)
         self.rig = rig or Rig()
         self.config = config or SimConfig()
+        if self.implicit and not hasattr(self.material, "viscosity_of"):
+            raise ValueError(f"sim.viscous_solver = implicit needs a material with a viscosity (a rheology law); "
+                             f"{type(self.material).__name__} has none: use sim.viscous_solver = explicit")
         self.density = float(density)
         self.cache_dir = cache_dir
         self.scene: Scene = build_scene(self.rig, self.config, self.density)
@@ -115,8 +118,8 @@ class StirringSimulator(nn.Module):
     def time_step(self, trajectory: Trajectory) -> float:
         """The step [s]: min of the acoustic limit cfl·dx/(c + u_max) (c the rollout's ``sound_speed``; with a
         projection the flow's limit cfl·dx/u_max), ``dt_max`` and the ``viscous_time_step`` times ``max_substeps``
-        (once where the shear stress is not subcycled, ``substeps``), shortened so that it divides the trajectory's
-        duration."""
+        (once where the shear stress is not subcycled, ``substeps``; not at all where it is implicit), shortened so
+        that it divides the trajectory's duration."""
         cfg = self.config
         if cfg.dt is not None:
             dt = cfg.dt
@@ -124,9 +127,9 @@ class StirringSimulator(nn.Module):
             u_max = trajectory.max_speed(self.rig.rod.radius)
             signal = u_max if cfg.pressure == "projection" else self.sound_speed(trajectory) + u_max
             dt = min(cfg.cfl * cfg.dx / max(signal, 1e-12), cfg.dt_max)
-            if not self.subcycles:
+            if not (self.subcycles or self.implicit):
                 dt = min(dt, self.viscous_time_step(trajectory))
-            elif cfg.max_substeps is not None:
+            elif self.subcycles and cfg.max_substeps is not None:
                 dt = min(dt, cfg.max_substeps * self.viscous_time_step(trajectory))
         steps = max(1, math.ceil(trajectory.duration / dt * (1.0 - STEP_TOLERANCE)))
         return trajectory.duration / steps
@@ -140,11 +143,16 @@ class StirringSimulator(nn.Module):
         return cfg.viscous_safety * self.density * cfg.dx**2 / (2 * cfg.dim * max(eta_max, 1e-12))
 
     @property
+    def implicit(self) -> bool:
+        """Whether the shear stress is solved implicitly (``SimConfig.viscous_solver``): no viscous limit."""
+        return self.config.viscous_solver == "implicit"
+
+    @property
     def subcycles(self) -> bool:
         """Whether the shear stress runs in substeps of its explicit limit (``SimConfig.viscous_substeps``); never
         for a material whose stress depends on the step itself (``Corotated``: μ Δt)."""
         step_dependent = isinstance(self.material, StepDependentMaterial) and self.material.step_dependent
-        return self.config.viscous_substeps and not step_dependent
+        return self.config.viscous_substeps and not step_dependent and not self.implicit
 
     def substeps(self, trajectory: Trajectory, dt: float) -> int:
         """m, the shear stress's substeps in a step ``dt`` [s]: the fewest that keep dt/m within the

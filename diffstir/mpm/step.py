@@ -16,6 +16,7 @@ from torch import Tensor
 from . import transfer
 from .boundaries import GhostOperator, RodPose, cup_sdf, ghost_band, is_solid, rod_sdf, rod_velocity
 from .grid import Stencil, quadratic_stencil
+from .implicit_viscosity import implicit_viscous_step
 from .materials import volumetric_stress
 from .packing import SURFACE_FILL, deposit, packed_volume_ratio, place_rod_points
 from .projection import Projection, divergence, divergence_transpose, solve_pressure
@@ -136,30 +137,43 @@ def grid_update(scene: Scene, material, buffer: Tensor, pose: RodPose, dt: float
     fill = torch.where(solid, 1.0, (2.0 * mass / scene.node_mass).clamp(max=1.0)).to(v.dtype)
     cell_volume = grid.dx**d * cell_min(fill, scene.cells) * cell_any(~solid, scene.cells)
     inertia = mass.clamp_min(scene.node_mass)[:, None]  # lighter nodes (walls, surface) get the bulk's inertia
+    implicit = scene.viscous_stiffness is not None
     kick, h = None, dt / substeps
     if scene.incompressible:
         operator, pressure_cell = pressure_operator(scene, mass, has_mass & ~solid, solid, packing, cup_ghosts,
                                                     rod_ghosts)
-        if pressure is not None and substeps > 1:  # the last step's pressure's impulse over one substep
+        if pressure is not None and (substeps > 1 or implicit):  # the last step's pressure's impulse over h
             kick = operator.impulse((h * grid.dx**d) * pressure * pressure_cell)
-    v_visc, f_shear = v, None
-    for k in range(substeps):
-        if k > 0:
-            v_ext = rod_ghosts(cup_ghosts(v_visc))
-        grad_v = cell_velocity_gradient(v_ext, scene.cells)
-        if material_state is None:
-            stress = material.shear_stress(grad_v, scene.viscosity_cap, h)
-        else:
-            stress, material_state = material.shear_stress(grad_v, scene.viscosity_cap, h, state=material_state)
-        f = nodal_forces(stress, cell_volume, scene.cells, grid.num_nodes)
-        v_visc = torch.where(has_mass[:, None], v_visc + h * f / inertia, 0.0)
-        if kick is not None and k < substeps - 1:
-            v_visc = v_visc + kick
-        f_shear = f if f_shear is None else f_shear + f
-    if kick is not None:  # the projection below solves for the whole step's pressure
-        v_visc = v_visc - (substeps - 1) * kick
-    if substeps > 1:
-        f_shear = f_shear / substeps
+    if implicit:  # one backward-Euler solve (``implicit_viscosity``), the last step's pressure pushing throughout
+        if material_state is not None:
+            raise ValueError("sim.viscous_solver = implicit takes a material without a state of its own")
+        eta = material.viscosity_of(cell_velocity_gradient(v_ext, scene.cells), scene.viscosity_cap)
+        ghost = torch.zeros_like(has_mass).index_fill(0, cup_ghosts.target, True)
+        ghost = ghost.index_copy(0, rod_ghosts.target, ghost[rod_ghosts.target] | in_rod)
+        v_visc, f_shear = implicit_viscous_step(scene.cells, scene.viscous_stiffness, eta, cell_volume,
+                                                v if kick is None else v + kick, inertia[:, 0], has_mass & ~ghost,
+                                                cup_ghosts, rod_ghosts, dt)
+        if kick is not None:  # the projection below solves for the whole step's pressure
+            v_visc = v_visc - kick
+    else:
+        v_visc, f_shear = v, None
+        for k in range(substeps):
+            if k > 0:
+                v_ext = rod_ghosts(cup_ghosts(v_visc))
+            grad_v = cell_velocity_gradient(v_ext, scene.cells)
+            if material_state is None:
+                stress = material.shear_stress(grad_v, scene.viscosity_cap, h)
+            else:
+                stress, material_state = material.shear_stress(grad_v, scene.viscosity_cap, h, state=material_state)
+            f = nodal_forces(stress, cell_volume, scene.cells, grid.num_nodes)
+            v_visc = torch.where(has_mass[:, None], v_visc + h * f / inertia, 0.0)
+            if kick is not None and k < substeps - 1:
+                v_visc = v_visc + kick
+            f_shear = f if f_shear is None else f_shear + f
+        if kick is not None:  # the projection below solves for the whole step's pressure
+            v_visc = v_visc - (substeps - 1) * kick
+        if substeps > 1:
+            f_shear = f_shear / substeps
     f_stress = f_shear
     if scene.incompressible:
         impulse = project(scene, operator, pressure_cell, v_visc, packing)
