@@ -35,7 +35,7 @@ from scipy.sparse import linalg
 from torch import Tensor
 
 from .boundaries import GhostOperator
-from .projection import extension_matrix
+from .projection import ImplicitSolve, extension_matrix
 from .viscous import CellStencil, cell_velocity_gradient, nodal_forces
 
 
@@ -126,24 +126,6 @@ class ViscousSolve:
         return out.view(self.shape)
 
 
-class _ImplicitStep(torch.autograd.Function):
-    """x = A⁻¹ r for a residual r that is zero at the solution: its value is zero, its derivatives the
-    reverse-mode g ↦ A⁻ᵀ g and the forward-mode ṙ ↦ A⁻¹ ṙ (``ViscousSolve``)."""
-
-    @staticmethod
-    def forward(ctx, residual: Tensor, solve: ViscousSolve) -> Tensor:
-        ctx.solve = solve
-        return torch.zeros_like(residual)
-
-    @staticmethod
-    def backward(ctx, grad: Tensor):
-        return ctx.solve(grad, transpose=True), None
-
-    @staticmethod
-    def jvp(ctx, residual_tangent: Tensor, _):
-        return ctx.solve(residual_tangent)
-
-
 def implicit_viscous_step(cells: CellStencil, stiffness: StiffnessPattern, viscosity: Tensor, cell_volume: Tensor,
                           v: Tensor, inertia: Tensor, unknown: Tensor, cup: GhostOperator, rod: GhostOperator,
                           dt: float) -> tuple[Tensor, Tensor]:
@@ -170,5 +152,5 @@ def implicit_viscous_step(cells: CellStencil, stiffness: StiffnessPattern, visco
     if torch.is_grad_enabled() or dual:
         residual = torch.where(keep, inertia[:, None] * (start - solution) / dt + forces(solution), 0.0)
         if residual.requires_grad or dual:
-            solution = solution + _ImplicitStep.apply(residual, solve)
+            solution = solution + ImplicitSolve.apply(residual, solve)
     return solution, forces(solution)

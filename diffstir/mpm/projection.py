@@ -29,7 +29,7 @@ it is removed less well the larger β (docs/validation.md).
 
 A is symmetric positive definite (the ghost velocities pin the constant pressure). It is assembled each step as a
 sparse matrix and factorised (``PressureSolver``). Gradients: the solve is differentiated implicitly,
-dπ = A⁻¹ (ds − dA π), by one more solve in the backward pass (``_ImplicitSolve``), not through a solver's
+dπ = A⁻¹ (ds − dA π), by one more solve in the backward pass (``ImplicitSolve``), not through a solver's
 iterations.
 """
 
@@ -244,7 +244,8 @@ class PressureSolver:
         else:
             raise ValueError(f"method = {method!r}; expected 'ldl', 'cg' or None")
 
-    def __call__(self, rhs: Tensor) -> Tensor:
+    def __call__(self, rhs: Tensor, transpose: bool = False) -> Tensor:
+        """A⁻¹ ``rhs`` on the pressure cells; A is symmetric, so ``transpose`` changes nothing."""
         b = rhs.detach()[self.keep]
         if self.method == "ldl":
             x = torch.from_numpy(self.ldl.solve(b.double().cpu().numpy())).to(rhs.device)
@@ -286,19 +287,20 @@ def conjugate_gradient(operator, rhs: Tensor, inverse_diagonal: Tensor, toleranc
     return x
 
 
-class _ImplicitSolve(torch.autograd.Function):
+class ImplicitSolve(torch.autograd.Function):
     """x = A⁻¹ r for a residual r that is zero at the solution: its value is taken as zero (the solve's round-off
     would only make a rollout with derivatives differ from one without), its derivatives are the reverse-mode
-    g ↦ A⁻¹ g (A symmetric) and the forward-mode ṙ ↦ A⁻¹ ṙ, by a ``PressureSolver``."""
+    g ↦ A⁻ᵀ g and the forward-mode ṙ ↦ A⁻¹ ṙ, by a ``solver`` called as ``solver(rhs, transpose=...)``
+    (``PressureSolver``, ``implicit_viscosity.ViscousSolve``)."""
 
     @staticmethod
-    def forward(ctx, residual: Tensor, solver: PressureSolver) -> Tensor:
+    def forward(ctx, residual: Tensor, solver) -> Tensor:
         ctx.solver = solver
         return torch.zeros_like(residual)
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        return ctx.solver(grad), None
+        return ctx.solver(grad, transpose=True), None
 
     @staticmethod
     def jvp(ctx, rhs_tangent: Tensor, _):
@@ -308,7 +310,7 @@ class _ImplicitSolve(torch.autograd.Function):
 def solve_pressure(projection: Projection, rhs: Tensor) -> Tensor:
     """π with A π = rhs on the pressure cells (module docstring); differentiable, in reverse and forward mode, in
     ``rhs`` and in A's tensors by the implicit function theorem: π = π₀ + A⁻¹ (rhs − A π₀), with π₀ the solution
-    held constant (``_ImplicitSolve``)."""
+    held constant (``ImplicitSolve``)."""
     solver = PressureSolver(projection.matrix(), projection.pressure_cell)
     p = solver(rhs)
     dual = any(fwAD.unpack_dual(t).tangent is not None for t in (rhs, projection.mobility))
@@ -316,5 +318,5 @@ def solve_pressure(projection: Projection, rhs: Tensor) -> Tensor:
         return p
     residual = rhs - projection(p)  # zero, but differentiable
     if residual.requires_grad or dual:
-        return p + _ImplicitSolve.apply(residual, solver)
+        return p + ImplicitSolve.apply(residual, solver)
     return p
