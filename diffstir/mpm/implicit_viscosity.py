@@ -35,6 +35,7 @@ from scipy.sparse import linalg
 from torch import Tensor
 
 from .boundaries import GhostOperator
+from .materials import deviatoric_rate_of_strain
 from .projection import ImplicitSolve, extension_matrix
 from .viscous import CellStencil, cell_velocity_gradient, nodal_forces
 
@@ -139,11 +140,8 @@ def implicit_viscous_step(cells: CellStencil, stiffness: StiffnessPattern, visco
     keep = unknown[:, None]
 
     def forces(u: Tensor) -> Tensor:
-        grad_v = cell_velocity_gradient(rod(cup(u)), cells)
-        sym = 0.5 * (grad_v + grad_v.transpose(-1, -2))
-        trace = sym.diagonal(dim1=-2, dim2=-1).sum(-1)
-        dev = sym - trace[:, None, None] / sym.shape[-1] * torch.eye(sym.shape[-1], dtype=v.dtype, device=v.device)
-        return nodal_forces(2.0 * viscosity[:, None, None] * dev, cell_volume, cells, num_nodes)
+        dev_D = deviatoric_rate_of_strain(cell_velocity_gradient(rod(cup(u)), cells))
+        return nodal_forces(2.0 * viscosity[:, None, None] * dev_D, cell_volume, cells, num_nodes)
 
     start = torch.where(keep, v, 0.0)
     rhs = torch.where(keep, inertia[:, None] * start / dt + forces(torch.zeros_like(v)), 0.0)
