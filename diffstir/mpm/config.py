@@ -204,8 +204,9 @@ RUN_SETTINGS = ("device", "kernels", "compile", "checkpoint_every")
 #: The settings of ``SimConfig.numerics``. A record that lacks some of them was made by numerics that had then the
 #: values of ``FORMER_NUMERICS``: APIC transfers, each particle's own J, a fixed sound speed, no boundary particles,
 #: the shear stress's explicit limit setting the step (no substeps, no implicit solve), and the 2 ms largest step
-#: that the coarse stage, the only estimator such records describe, has always had (conf/sim/coarse2d.yaml). A record made with substeps
-#: before they were recorded reads as made without them, so a rectifier trained on it is not applied.
+#: that the coarse stage, the only estimator such records describe, has always had (conf/sim/coarse2d.yaml). A record
+#: made with substeps before they were recorded reads as made without them, so a rectifier trained on it is not
+#: applied.
 NUMERICS = ("dim", "dx", "sound_speed", "compressibility", "flip", "volume_relaxation", "pressure",
             "wall_pressure", "viscous_substeps", "max_substeps", "viscous_solver", "dt_max")
 FORMER_NUMERICS = {"compressibility": None, "flip": 0.0, "volume_relaxation": 0.0, "pressure": "compressible",
