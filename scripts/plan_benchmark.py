@@ -4,7 +4,8 @@
 Fluids of every family, each stirred twice: with the default plan's programme for the paper's rig
 (``conf/lab/programme/paper_plan.yaml``, 8 s at 0.01-0.16 m/s) and with the one-speed default
 (``conf/lab/programme/example.yaml``, 0.05 m/s for 2.5 s). Each truth is simulated once per fluid and programme on
-``conf/lab/sim/truth2d.yaml`` (2-D MPM, 2 mm cells, finer than the fit: truth 2-D MPM, so the figures show the
+``conf/lab/sim/truth2d.yaml`` with the implicit shear stress and a 200 Pa·s cap (``TRUTH_SETTINGS``; 2-D MPM, 2 mm
+cells, finer than the fit: truth 2-D MPM, so the figures show the
 analysis against a finer run of its own kind of simulator, not against a real cup) and read by the paper's sensor
 (``conf/lab/sensor/paper.yaml``) with seeds F..F+S-1 (``--first-seed``, ``--seeds``).
 
@@ -90,6 +91,10 @@ PROGRAMMES = {"planned": CONF / "lab" / "programme" / "paper_plan.yaml",
 
 #: ``SimConfig`` settings that replace those of the truth's and the analyses' simulators (``--sim``).
 SIM_SETTINGS: dict = {}
+#: The truth's own settings over ``conf/lab/sim/truth2d.yaml``: the implicit shear stress and a 200 Pa·s cap, so
+#: that no fluid's truth is capped (Carbopol reads 29-114 Pa·s over the plan's band, a yield-stress fluid's far field
+#: more) and its step does not shorten with the viscosity.
+TRUTH_SETTINGS = {"viscous_solver": "implicit", "viscosity_cap": 200.0}
 
 
 def use_settings(path: Path, sim_settings: dict) -> None:
@@ -104,6 +109,11 @@ def use_settings(path: Path, sim_settings: dict) -> None:
 def simulator(path: str):
     """The ``SimConfig`` of ``conf/<path>`` with the ``--sim`` settings."""
     return sim(path).replace(**SIM_SETTINGS)
+
+
+def truth_simulator():
+    """The truth's ``SimConfig``: ``conf/lab/sim/truth2d.yaml`` with ``TRUTH_SETTINGS``, then the ``--sim`` ones."""
+    return sim("lab/sim/truth2d.yaml").replace(**{**TRUTH_SETTINGS, **SIM_SETTINGS})
 
 
 def sim_setting(text: str) -> tuple[str, object]:
@@ -146,7 +156,7 @@ def truth_identity(fluid: Fluid, kind: str) -> dict:
     """What a truth simulation of ``fluid`` stirred by the ``kind`` programme is made from (the truth settings less
     their device): a stored truth is read back only where this is unchanged."""
     spec, _ = programme(PROGRAMMES[kind])
-    config = {k: v for k, v in asdict(simulator("lab/sim/truth2d.yaml")).items() if k != "device"}
+    config = {k: v for k, v in asdict(truth_simulator()).items() if k != "device"}
     return json.loads(json.dumps({"fluid": {"name": fluid.name, "density": fluid.density, "law": fluid.law},
                                   "programme": spec, "sim": config, "rig": asdict(Rig())}))
 
@@ -176,7 +186,7 @@ def stored_truth(path: Path, fluid_name: str, kind: str) -> tuple[TruthSimulatio
         raise SystemExit(f"{path}: made from other settings than the current {fluid_name} {kind} truth; move it "
                          f"away to simulate it again")
     _, trajectory = programme(PROGRAMMES[kind])
-    truth = TruthSimulation(fluid, trajectory, Rig(), simulator("lab/sim/truth2d.yaml"), HiddenPhysicsSpec(), times,
+    truth = TruthSimulation(fluid, trajectory, Rig(), truth_simulator(), HiddenPhysicsSpec(), times,
                             force, made["dt"], made["discretisation"], made["per_unit_length"], made["slice_factor"])
     return truth, made["seconds"]
 
@@ -184,14 +194,14 @@ def stored_truth(path: Path, fluid_name: str, kind: str) -> tuple[TruthSimulatio
 @functools.lru_cache(maxsize=1)  # the cases of one fluid and programme follow each other in one process
 def truth_of(fluid_name: str, kind: str, store: Path | None) -> tuple[TruthSimulation, float]:
     """``fluid_name``'s truth under the ``kind`` programme and its wall time [s]: read from ``store`` where it is
-    there, else simulated on ``conf/lab/sim/truth2d.yaml`` (and stored, where ``store`` is given)."""
+    there, else simulated on ``truth_simulator()`` (and stored, where ``store`` is given)."""
     path = None if store is None else store / f"{fluid_name}_{kind}.npz"
     found = None if path is None else stored_truth(path, fluid_name, kind)
     if found is not None:
         return found
     _, trajectory = programme(PROGRAMMES[kind])
     clock = time.perf_counter()
-    truth = simulate_truth(fluid_named(fluid_name), trajectory, sim_config=simulator("lab/sim/truth2d.yaml"))
+    truth = simulate_truth(fluid_named(fluid_name), trajectory, sim_config=truth_simulator())
     seconds = time.perf_counter() - clock
     if path is not None:
         store_truth(path, truth, seconds, truth_identity(fluid_named(fluid_name), kind))
@@ -330,8 +340,8 @@ def main() -> None:
                         help="the planned cases' programme: a lab/programme file, such as diffstir-plan's "
                              "OUT/lab/programme/planned.yaml (default: the default plan's)")
     parser.add_argument("--sim", nargs="+", type=sim_setting, default=[], metavar="KEY=VALUE",
-                        help="settings of the truth's and the analyses' simulators, such as viscous_solver=implicit "
-                             "viscosity_cap=200 (give the cases their own --truths and --out)")
+                        help="settings of the truth's and the analyses' simulators, such as dt_max=0.001 (give the cases "
+                             "their own --truths and --out)")
     parser.add_argument("--workers", type=int, default=2, help="processes of one analysis (1 with --jobs > 1)")
     parser.add_argument("--jobs", type=int, default=1, help="cases (or truths) run side by side")
     parser.add_argument("--truths", type=Path, help="folder of stored truth simulations, read and added to")
@@ -343,7 +353,7 @@ def main() -> None:
     args = parser.parse_args()
     use_settings(args.planned.resolve(), dict(args.sim))
     try:
-        simulator("lab/sim/truth2d.yaml")
+        truth_simulator()
     except (TypeError, ValueError) as error:
         parser.error(f"--sim: {error}")
     pairs = [(f, k) for f in args.fluids for k in args.programmes]

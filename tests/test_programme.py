@@ -108,14 +108,29 @@ def test_a_newtonian_programme_reads_its_viscosity_at_every_window_and_is_newton
     assert rows[0].endswith("| no: at the viscosity cap |") and rows[1].endswith("| no: not resolved |")
 
 
-def test_a_fluid_thicker_than_the_viscosity_cap_gets_no_rung_above_it_and_is_refused_naming_it(lab_recordings):
-    """The 0.5 Pa·s fluid read by a simulator capped at 0.2 Pa·s: above the cap every rung would read alike, so
-    none is simulated there (the ladder climbed to 1000 Pa·s and failed), each window is at the cap, and the
-    analysis refuses in one line that names the cap."""
+def test_a_fluid_thicker_than_the_thickest_rung_gets_no_rung_above_it_and_is_refused_naming_it(lab_recordings):
+    """The 0.5 Pa·s fluid read by rungs of at most 0.2 Pa·s: above it every rung would read alike, so none is
+    simulated there (the ladder climbed to 1000 Pa·s and failed), each window is at the thickest rung, and the
+    analysis refuses in one line that names it."""
     capped = FAST.replace(viscosity_cap=0.2)
-    refusal = r"at the viscosity cap, .*\); raise sim.viscosity_cap \(0.2 Pa s\)"
+    refusal = r"at the viscosity cap, .*\); raise behaviour.thickest_rung \(0.2 Pa s\)"
     with pytest.raises(RecordingError, match=refusal):
-        characterise([lab_recordings["newtonian"]], config=capped, workers=2, settings=BehaviourSettings(**SETTINGS))
+        characterise([lab_recordings["newtonian"]], config=capped, workers=2,
+                     settings=BehaviourSettings(**SETTINGS, thickest_rung=0.2))
+
+
+def test_rungs_above_the_viscosity_cap_are_simulated_implicitly_and_read_the_fluid(lab_recordings):
+    """The 0.5 Pa·s fluid read by a simulator capped at 0.2 Pa·s: the rungs above the cap are simulated with the
+    implicit shear stress and the cap at the thickest rung, and every window's interval holds the truth, as with
+    the explicit rungs of a higher cap."""
+    capped = FAST.replace(viscosity_cap=0.2)
+    result = characterise([lab_recordings["newtonian"]], config=capped, workers=2,
+                          settings=BehaviourSettings(**SETTINGS))
+    (fit,) = result.programmes
+    assert any(v > 0.2 for v in fit.rungs) and any(v <= 0.2 for v in fit.rungs)
+    for p in fit.points:
+        lo, hi = p.ci95
+        assert p.resolvable and not p.capped and lo <= 0.5 <= hi
 
 
 def test_the_flow_curve_analysis_classifies_and_fits_the_laws_to_the_points(lab_recordings):

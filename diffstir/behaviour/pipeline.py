@@ -134,7 +134,10 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
             states = [_window_state(p, used) for p in points]
             capped = "at the viscosity cap" in states
             advice = ["stir faster or at more speeds"] if "not resolved" in states or not capped else []
-            if capped:
+            if capped and programme:
+                advice.append(f"raise behaviour.thickest_rung ({max(settings.thickest_rung, config.viscosity_cap):g}"
+                              " Pa s): the windows at it read a fluid at least that thick")
+            elif capped:
                 solver = "" if config.viscous_solver == "implicit" else (
                     " with sim.viscous_solver=implicit, whose step does not shorten with the viscosity")
                 advice.append(f"raise sim.viscosity_cap ({config.viscosity_cap:g} Pa s){solver}: the windows at it "
@@ -185,7 +188,7 @@ def programme_fits(windows: list[list[SpeedWindow]], config: SimConfig, density:
             if recording_windows:
                 fit = programme_viscosities(recording_windows, config, density, workers=pool,
                                             model_error=settings.model_error, inertial_error=settings.inertial_error,
-                                            stage=f"programme {k}")
+                                            thickest_rung=settings.thickest_rung, stage=f"programme {k}")
                 tracker.finished(f"programme {k}")
                 fits.append(fit)
     return fits

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..errors import ConfigError, check_choice, check_choices, is_number, is_whole
-from ..fitting import INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, PAUSE_SPEED, checked_model_error
+from ..fitting import INERTIAL_FORCE_ERROR, MODEL_FORCE_ERROR, PAUSE_SPEED, THICKEST_RUNG, checked_model_error
 from ..rheology import LAWS
 
 #: Laws fitted to all speeds at once by default.
@@ -46,6 +46,8 @@ class BehaviourSettings:
         model_error: σ_m, the relative 1-σ error of the fitting simulation's force [1], in every window's interval
             and the joint laws' covariances (``fitting.COARSE_FORCE_ERROR`` for ``conf/sim/coarse2d.yaml``).
         inertial_error: σ_i, the relative 1-σ error of its inertial part [1], in the same intervals.
+        thickest_rung: with ``analysis = "flow_curve"``, the most viscous Newtonian rung [Pa·s]; rungs above the
+            simulator's ``viscosity_cap`` are simulated with the implicit shear stress (``fitting.programme``).
         slope_test: ``"combined"`` (the points' slope and the joint power law's n − 1, their error scaled by their
             disagreement), ``"points"`` or ``"joint_index"`` (needs the power law in ``joint_models``).
     """
@@ -61,6 +63,7 @@ class BehaviourSettings:
     seed: int = 0
     model_error: float = MODEL_FORCE_ERROR
     inertial_error: float = INERTIAL_FORCE_ERROR
+    thickest_rung: float = THICKEST_RUNG
     slope_test: str = "combined"
 
     def __post_init__(self) -> None:
@@ -69,7 +72,8 @@ class BehaviourSettings:
             value = getattr(self, name)
             if not is_whole(value, low):
                 raise ConfigError(f"behaviour.{name} = {value!r}; expected a whole number of at least {low}")
-        for name, unit in (("speed_tolerance", "1"), ("min_window", "s"), ("pause_speed", "m/s")):
+        for name, unit in (("speed_tolerance", "1"), ("min_window", "s"), ("pause_speed", "m/s"),
+                           ("thickest_rung", "Pa s")):
             value = getattr(self, name)
             if not (is_number(value) and value > 0):
                 raise ConfigError(f"behaviour.{name} = {value!r} {unit}; expected a positive number in {unit}")

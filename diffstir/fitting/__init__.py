@@ -22,7 +22,7 @@ from .nuisance import DEFAULT_NUISANCES, NO_NUISANCE, NUISANCES, UNITS, SensorNu
 from .optimise import OPTIMIZERS, FitResult, Readings, fit_model, noise_scale
 from .parameters import MaterialParameters, ParameterSet, ThetaParameters, theta_of, value_of
 from .problem import FitProblem, StirProblem, Windows, rig_from_recording, trajectory_from_recording
-from .programme import PROGRAMME_SIMULATIONS, ProgrammeFit, programme_viscosities
+from .programme import PROGRAMME_SIMULATIONS, THICKEST_RUNG, ProgrammeFit, programme_viscosities
 from .progress import Progress, fit_simulations
 from .result import Identification, parameter_summary, parameter_uncertainty
 from .selection import CRITERIA, bic, bic_of_rss, rank, schwarz_weights, select
@@ -37,6 +37,7 @@ __all__ = ["COARSE_FORCE_ERROR", "CRITERIA", "DEFAULT_NUISANCES", "FitJob", "Fit
            "MODEL_FORCE_ERROR", "MagnitudeJob", "MaterialParameters", "NO_NUISANCE", "NUISANCES", "OPTIMIZERS",
            "PAUSE_SPEED", "PROBE_INDEX_STEP", "PROGRAMME_SIMULATIONS", "ParameterSet", "PointsFit", "ProgrammeFit",
            "Progress", "ReadingJob", "Readings", "SHEAR_RATE_PROBES", "SensorNuisance", "SpeedWindow", "StirProblem",
+           "THICKEST_RUNG",
            "ThetaParameters", "UNITS", "Uncertainty", "ViscosityLadder", "ViscosityPoint", "Windows", "WindowsJob",
            "YIELD_SHARES", "Z95", "bic", "bic_of_rss", "characteristic_shear_rate", "checked_model_error",
            "effective_samples", "effective_shear_rate", "fit_model", "fit_points", "fit_simulations", "force_error",

@@ -24,9 +24,13 @@ of a Newtonian fluid (a rung) reads every window at once, so the rungs form a la
    linear in η: its chord in ln η would read J 18 % low to 23 % high within a factor 1.5, and σ_i would take the
    difference for inertia.
 
+Rungs up to the simulator's ``viscosity_cap`` are simulated as configured; thicker ones, up to ``thickest_rung``,
+with the implicit shear stress (``SimConfig.viscous_solver``) and the cap raised to ``thickest_rung``: the explicit
+step shortens in proportion to the viscosity (1 ms at 20 Pa·s on 2.5 mm cells), the implicit one does not, and the two
+read a Newtonian stir alike (docs/validation-closed-forms.md, The implicit shear stress).
 A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
-is not ``resolvable``, nor is one read at the simulator's ``viscosity_cap`` or above it (``capped``: no rung is
-simulated above the cap, where every fluid reads alike, so such a fluid is at least that thick there). A rung's
+is not ``resolvable``, nor is one read at the thickest rung or above it (``capped``: no rung is simulated above it,
+where every fluid reads alike, so such a fluid is at least that thick there). A rung's
 fluid has one viscosity all through the programme, where a thinning fluid was thicker during the slower speeds before
 a window: the window's flow carries that history (the bulk rotation the earlier speeds set up) only as far as a
 Newtonian fluid of its own apparent viscosity would, as in the window fits.
@@ -71,6 +75,9 @@ GAUSS_NEWTON_STEPS, CONVERGED = 20, 3e-5
 #: Slope d ln M / d ln η [1] from which a window's drag counts as viscous, where k_s is measured: at the
 #: slowest speed the drag of a thin fluid can sit at the sensor's resolution, where the probes read noise.
 VISCOUS_SLOPE = 0.5
+#: The most viscous rung by default [Pa·s]: Carbopol microgels and yield-stress pastes read 30-120 Pa·s at the
+#: slowest planned speed (docs/accuracy-plan.md).
+THICKEST_RUNG = 200.0
 #: Simulations of one programme analysis at most: the rungs and the effective shear rate's four.
 PROGRAMME_SIMULATIONS = MAX_RUNGS + SHEAR_RATE_PROBES
 
@@ -122,24 +129,34 @@ class ProgrammeFit:
 
 
 def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density: float, *, workers: Workers,
-                          model_error: float, inertial_error: float = 0.0,
+                          model_error: float, inertial_error: float = 0.0, thickest_rung: float = THICKEST_RUNG,
                           stage: str = "programme") -> ProgrammeFit:
     """The apparent viscosity of each of one recording's ``windows`` (module docstring) on the simulation
     ``config`` for a fluid of ``density`` [kg/m³], the simulations run by ``workers``; ``model_error`` σ_m and
-    ``inertial_error`` σ_i are the simulator's relative force errors
-    (``fitting.uncertainty``)."""
+    ``inertial_error`` σ_i are the simulator's relative force errors (``fitting.uncertainty``); ``thickest_rung``
+    [Pa·s] is the most viscous rung, those above ``config.viscosity_cap`` simulated implicitly."""
     recording = windows[0].recording if windows else None
     if recording is None or any(w.recording is not recording for w in windows):
         raise ValueError("programme: expected the speed windows of one recording")
     end = windows[-1].end
-    problem = StirProblem(recording, config, density, Windows(windows[0].start, end, end))
+    cap = max(config.viscosity_cap, thickest_rung)  # Pa·s: no rung above it, where every fluid reads alike
+    thick = config.replace(viscous_solver="implicit", viscosity_cap=cap)
+
+    def problem_for(eta: float, span: Windows) -> StirProblem:
+        """The stir over ``span`` simulated as a rung of viscosity ``eta`` [Pa·s] is."""
+        return StirProblem(recording, config if eta <= config.viscosity_cap else thick, density, span)
+
+    whole = Windows(windows[0].start, end, end)
+    problem = problem_for(0.0, whole)
+    thick_problem = problem_for(cap, whole)
     masks = np.array([(problem.times > w.start) & (problem.times <= w.end) for w in windows])
     noise = noise_scale(problem.measured, recording.sensor.resolution)
     target = np.log([float(np.mean(np.abs(problem.measured[m]))) for m in masks])
     readings: dict[float, np.ndarray] = {}
 
     def simulate(viscosities: list[float]) -> Rungs:
-        jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem, FitModel.named("newtonian", eta=eta))
+        jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem if eta <= config.viscosity_cap else thick_problem,
+                           FitModel.named("newtonian", eta=eta))
                 for eta in viscosities]
         readings.update(zip(viscosities, workers.map(jobs)))
         etas = np.array(sorted(readings))
@@ -147,7 +164,6 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
                  for eta in etas]
         return Rungs(etas, np.array(sizes))
 
-    cap = config.viscosity_cap  # Pa·s: no rung above it, where the simulator reads every fluid alike
     start = sorted({min(eta, cap) for eta in START_VISCOSITIES})
     rungs = simulate(start if len(start) > 1 else [cap / 10, cap])
     log_eta, slope, width = rungs.read(target)
@@ -166,8 +182,9 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
     capped = log_eta >= math.log(cap) - CAP_TOLERANCE
     probe = _probe_window(np.where(capped, 0.0, slope))
     window = windows[probe]
-    probed = StirProblem(recording, config, density, Windows(window.start, window.end, window.end))
-    k_s = metzner_otto_constant(probed, min(float(np.exp(log_eta[probe])), cap),
+    probe_viscosity = min(float(np.exp(log_eta[probe])), cap)
+    probed = problem_for(probe_viscosity, Windows(window.start, window.end, window.end))
+    k_s = metzner_otto_constant(probed, probe_viscosity,
                                 evaluate=lambda models: mean_readings_on(workers, stage, probed, models))
     simulations = len(readings) + SHEAR_RATE_PROBES
     points = []
