@@ -22,7 +22,7 @@ def a_truth(fluid_name: str, kind: str) -> bench.TruthSimulation:
     rng = np.random.default_rng(0)
     times = np.linspace(trajectory.t[0] + 5e-4, trajectory.t[-1], 400)
     truth = bench.TruthSimulation.silent(bench.fluid_named(fluid_name), trajectory, bench.Rig(), times,
-                                         bench.sim("lab/sim/truth2d.yaml"))
+                                         bench.truth_simulator())
     truth.force = rng.normal(0.0, 0.1, (times.size, 2))
     truth.discretisation = {"particles": 5192, "grid": [50, 50]}
     truth.per_unit_length, truth.slice_factor = True, 0.95
@@ -71,7 +71,7 @@ def test_a_truth_of_the_default_plan_is_refused_for_another_plans_programme(tmp_
     with pytest.raises(SystemExit, match="bingham_planned.npz: made from other settings"):
         bench.stored_truth(path, "bingham", "planned")
     # nor for other simulator settings (--sim)
-    bench.use_settings(bench.CONF / "lab" / "programme" / "paper_plan.yaml", {"viscous_solver": "implicit"})
-    assert bench.simulator("lab/sim/truth2d.yaml").viscous_solver == "implicit"
+    bench.use_settings(bench.CONF / "lab" / "programme" / "paper_plan.yaml", {"dt_max": 5e-4})
+    assert bench.truth_simulator().dt_max == 5e-4
     with pytest.raises(SystemExit, match="bingham_planned.npz: made from other settings"):
         bench.stored_truth(path, "bingham", "planned")
