@@ -13,7 +13,7 @@ from diffstir.behaviour import BehaviourSettings, characterise, reclassify
 from diffstir.behaviour.report import markdown
 from diffstir.errors import ConfigError
 from diffstir.recording import RecordingError
-from diffstir.fitting import PROGRAMME_SIMULATIONS
+from diffstir.fitting import PROGRAMME_SIMULATIONS, programme
 from diffstir.fitting.programme import BRACKET, MAX_RUNGS, MIN_SLOPE, Rungs, _probe_window, _waveform_estimate
 
 #: FAST's inertia is its own, so σ_i (the 2.5 mm slice's error against finite elements) is left out (test_behaviour)
@@ -131,6 +131,22 @@ def test_rungs_above_the_viscosity_cap_are_simulated_implicitly_and_read_the_flu
     for p in fit.points:
         lo, hi = p.ci95
         assert p.resolvable and not p.capped and lo <= 0.5 <= hi
+
+
+def test_a_diverging_rung_is_dropped_and_the_rung_below_it_becomes_the_thickest(lab_recordings, monkeypatch):
+    """The 0.5 Pa·s fluid whose 1 Pa·s rung diverges (its readings made non-finite here): the rung is dropped
+    with a warning that names it, no rung is simulated above the 0.1 Pa·s one, every window reads at it, and the
+    analysis refuses in one line instead of carrying NaN into a law."""
+    class Diverging(programme.ReadingJob):
+        def run(self, report):
+            readings = super().run(report)
+            return readings * math.nan if self.key == "rung 1" else readings
+
+    monkeypatch.setattr(programme, "ReadingJob", Diverging)
+    with pytest.warns(RuntimeWarning, match=r"the 1 Pa s rung's simulation diverged; windows thicker than 0.1 Pa s"):
+        with pytest.raises(RecordingError, match="at the viscosity cap"):
+            characterise([lab_recordings["newtonian"]], config=FAST, workers=1,
+                         settings=BehaviourSettings(**SETTINGS))
 
 
 def test_the_flow_curve_analysis_classifies_and_fits_the_laws_to_the_points(lab_recordings):

@@ -30,7 +30,9 @@ step shortens in proportion to the viscosity (1 ms at 20 Pa·s on 2.5 mm cells),
 read a Newtonian stir alike (docs/validation-closed-forms.md, The implicit shear stress).
 A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
 is not ``resolvable``, nor is one read at the thickest rung or above it (``capped``: no rung is simulated above it,
-where every fluid reads alike, so such a fluid is at least that thick there). A rung's
+where every fluid reads alike, so such a fluid is at least that thick there). A rung whose simulation diverges
+(non-finite readings: the implicit step with the last step's pressure grows unstable at 115 Pa·s and 0.16 m/s on
+2 ms steps, docs/flow-curve.md) is dropped with a warning and the rung below it becomes the thickest. A rung's
 fluid has one viscosity all through the programme, where a thinning fluid was thicker during the slower speeds before
 a window: the window's flow carries that history (the bulk rotation the earlier speeds set up) only as far as a
 Newtonian fluid of its own apparent viscosity would, as in the window fits.
@@ -42,12 +44,14 @@ speeds, so neighbouring nodes trade viscosity against each other (docs/flow-curv
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..mpm import SimConfig
 from ..parallel import Workers
+from ..recording import RecordingError
 from .apparent import CAP_TOLERANCE, ViscosityPoint, with_baseline
 from .initial import SHEAR_RATE_PROBES, metzner_otto_constant
 from .jobs import ReadingJob, mean_readings_on
@@ -155,10 +159,17 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
     readings: dict[float, np.ndarray] = {}
 
     def simulate(viscosities: list[float]) -> Rungs:
+        nonlocal cap
         jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem if eta <= config.viscosity_cap else thick_problem,
                            FitModel.named("newtonian", eta=eta))
                 for eta in viscosities]
-        readings.update(zip(viscosities, workers.map(jobs)))
+        for eta, reading in zip(viscosities, workers.map(jobs)):
+            if np.all(np.isfinite(reading)):
+                readings[eta] = reading
+            else:  # the step diverged: the thinner rungs are the ladder's top
+                cap = max([v for v in readings if v < eta], default=min(viscosities))
+                warnings.warn(f"{stage}: the {eta:.4g} Pa s rung's simulation diverged; windows thicker than "
+                              f"{cap:.4g} Pa s are read as at the viscosity cap", RuntimeWarning, stacklevel=2)
         etas = np.array(sorted(readings))
         sizes = [[math.log(float(np.mean(expected_magnitude(readings[eta][m], noise)))) for m in masks]
                  for eta in etas]
@@ -166,6 +177,11 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
 
     start = sorted({min(eta, cap) for eta in START_VISCOSITIES})
     rungs = simulate(start if len(start) > 1 else [cap / 10, cap])
+    if len(readings) < 2:  # a start rung diverged: one a decade thinner than the one left brackets from below
+        rungs = simulate([min(readings, default=cap) / 10])
+    if len(readings) < 2:
+        raise RecordingError(f"{stage}: the rungs' simulations of {recording.path or recording.name} diverged; "
+                             "use a smaller sim.dt_max (s)")
     log_eta, slope, width = rungs.read(target)
     while np.max(width) > math.log(BRACKET) and len(readings) < MAX_RUNGS:
         new: list[float] = []
