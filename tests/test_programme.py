@@ -133,10 +133,28 @@ def test_rungs_above_the_viscosity_cap_are_simulated_implicitly_and_read_the_flu
         assert p.resolvable and not p.capped and lo <= 0.5 <= hi
 
 
+def test_a_rung_diverging_at_its_step_is_simulated_again_at_half_of_it(lab_recordings, monkeypatch):
+    """The 0.5 Pa·s fluid whose 1 Pa·s rung diverges at FAST's step (its readings made non-finite here) but not at
+    half of it: the ladder keeps the rung from the shorter step and every window's interval holds the truth."""
+    class Diverging(programme.ReadingJob):
+        def run(self, report):
+            readings = super().run(report)
+            full_step = self.problem.config.dt_max == FAST.dt_max
+            return readings * math.nan if self.key == "rung 1" and full_step else readings
+
+    monkeypatch.setattr(programme, "ReadingJob", Diverging)
+    result = characterise([lab_recordings["newtonian"]], config=FAST, workers=1, settings=BehaviourSettings(**SETTINGS))
+    (fit,) = result.programmes
+    assert 1.0 in fit.rungs
+    for p in fit.points:
+        lo, hi = p.ci95
+        assert p.resolvable and lo <= 0.5 <= hi
+
+
 def test_a_diverging_rung_is_dropped_and_the_rung_below_it_becomes_the_thickest(lab_recordings, monkeypatch):
-    """The 0.5 Pa·s fluid whose 1 Pa·s rung diverges (its readings made non-finite here): the rung is dropped
-    with a warning that names it, no rung is simulated above the 0.1 Pa·s one, every window reads at it, and the
-    analysis refuses in one line instead of carrying NaN into a law."""
+    """The 0.5 Pa·s fluid whose 1 Pa·s rung diverges at either step (its readings made non-finite here): the rung
+    is dropped with a warning that names it, no rung is simulated above the 0.1 Pa·s one, every window reads at
+    it, and the analysis refuses in one line instead of carrying NaN into a law."""
     class Diverging(programme.ReadingJob):
         def run(self, report):
             readings = super().run(report)

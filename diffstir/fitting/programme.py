@@ -31,8 +31,9 @@ read a Newtonian stir alike (docs/validation-closed-forms.md, The implicit shear
 A window whose size does not grow with viscosity (a slope d ln M / d ln η ≤ ``MIN_SLOPE``: inertia sets its drag)
 is not ``resolvable``, nor is one read at the thickest rung or above it (``capped``: no rung is simulated above it,
 where every fluid reads alike, so such a fluid is at least that thick there). A rung whose simulation diverges
-(non-finite readings: the implicit step with the last step's pressure grows unstable at 115 Pa·s and 0.16 m/s on
-2 ms steps, docs/flow-curve.md) is dropped with a warning and the rung below it becomes the thickest. A rung's
+(non-finite readings: the implicit step with the last step's pressure can grow unstable at 90-115 Pa·s and
+0.16 m/s on 2 ms steps, docs/flow-curve.md) is simulated once more at ``RETRY_STEP`` of the step; diverged again,
+it is dropped with a warning and the rung below it becomes the thickest. A rung's
 fluid has one viscosity all through the programme, where a thinning fluid was thicker during the slower speeds before
 a window: the window's flow carries that history (the bulk rotation the earlier speeds set up) only as far as a
 Newtonian fluid of its own apparent viscosity would, as in the window fits.
@@ -45,7 +46,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -82,6 +83,8 @@ VISCOUS_SLOPE = 0.5
 #: The most viscous rung by default [Pa·s]: Carbopol microgels and yield-stress pastes read 30-120 Pa·s at the
 #: slowest planned speed (docs/accuracy-plan.md).
 THICKEST_RUNG = 200.0
+#: A rung whose simulation diverges is simulated once more with its ``dt_max`` times this [1].
+RETRY_STEP = 0.5
 #: Simulations of one programme analysis at most: the rungs and the effective shear rate's four.
 PROGRAMME_SIMULATIONS = MAX_RUNGS + SHEAR_RATE_PROBES
 
@@ -163,11 +166,16 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
         jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem if eta <= config.viscosity_cap else thick_problem,
                            FitModel.named("newtonian", eta=eta))
                 for eta in viscosities]
-        for eta, reading in zip(viscosities, workers.map(jobs)):
+        found = dict(zip(viscosities, workers.map(jobs)))
+        diverged = [(eta, job) for eta, job in zip(viscosities, jobs) if not np.all(np.isfinite(found[eta]))]
+        retried = [replace(job, problem=job.problem.with_config(job.problem.config.replace(
+            dt_max=job.problem.config.dt_max * RETRY_STEP))) for _, job in diverged]
+        found.update(zip([eta for eta, _ in diverged], workers.map(retried)))
+        for eta, reading in found.items():
             if np.all(np.isfinite(reading)):
                 readings[eta] = reading
-            else:  # the step diverged: the thinner rungs are the ladder's top
-                cap = max([v for v in readings if v < eta], default=min(viscosities))
+            else:  # the step diverged at either length: the thinner rungs are the ladder's top
+                cap = min(cap, max([v for v in readings if v < eta], default=min(viscosities)))
                 warnings.warn(f"{stage}: the {eta:.4g} Pa s rung's simulation diverged; windows thicker than "
                               f"{cap:.4g} Pa s are read as at the viscosity cap", RuntimeWarning, stacklevel=2)
         etas = np.array(sorted(readings))
