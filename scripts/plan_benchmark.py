@@ -5,9 +5,9 @@ Fluids of every family, each stirred twice: with the default plan's programme fo
 (``conf/lab/programme/paper_plan.yaml``, 8 s at 0.01-0.16 m/s) and with the one-speed default
 (``conf/lab/programme/example.yaml``, 0.05 m/s for 2.5 s). Each truth is simulated once per fluid and programme on
 ``conf/lab/sim/truth2d.yaml`` with the implicit shear stress and a 200 Pa·s cap (``TRUTH_SETTINGS``; 2-D MPM, 2 mm
-cells, finer than the fit: truth 2-D MPM, so the figures show the
-analysis against a finer run of its own kind of simulator, not against a real cup) and read by the paper's sensor
-(``conf/lab/sensor/paper.yaml``) with seeds F..F+S-1 (``--first-seed``, ``--seeds``).
+cells, finer than the fit: truth 2-D MPM, so the figures show the analysis against a finer run of its own kind of
+simulator, not against a real cup) and read by the paper's sensor (``conf/lab/sensor/paper.yaml``) with seeds
+F..F+S-1 (``--first-seed``, ``--seeds``).
 
 - planned: analysed as ``diffstir-fit experiment=flow_curve`` does (``behaviour.analysis=flow_curve`` on
   ``sim=slice2d``); its class, each window's point with its standard errors of ln η (the noise's and baseline's
@@ -340,8 +340,8 @@ def main() -> None:
                         help="the planned cases' programme: a lab/programme file, such as diffstir-plan's "
                              "OUT/lab/programme/planned.yaml (default: the default plan's)")
     parser.add_argument("--sim", nargs="+", type=sim_setting, default=[], metavar="KEY=VALUE",
-                        help="settings of the truth's and the analyses' simulators, such as dt_max=0.001 (give the cases "
-                             "their own --truths and --out)")
+                        help="settings of the truth's and the analyses' simulators, such as dt_max=0.001 (give "
+                             "the cases their own --truths and --out)")
     parser.add_argument("--workers", type=int, default=2, help="processes of one analysis (1 with --jobs > 1)")
     parser.add_argument("--jobs", type=int, default=1, help="cases (or truths) run side by side")
     parser.add_argument("--truths", type=Path, help="folder of stored truth simulations, read and added to")

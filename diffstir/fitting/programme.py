@@ -147,15 +147,12 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
         raise ValueError("programme: expected the speed windows of one recording")
     end = windows[-1].end
     cap = max(config.viscosity_cap, thickest_rung)  # Pa·s: no rung above it, where every fluid reads alike
-    thick = config.replace(viscous_solver="implicit", viscosity_cap=cap)
+    problem = StirProblem(recording, config, density, Windows(windows[0].start, end, end))
+    thick_problem = problem.with_config(config.replace(viscous_solver="implicit", viscosity_cap=cap))
 
-    def problem_for(eta: float, span: Windows) -> StirProblem:
-        """The stir over ``span`` simulated as a rung of viscosity ``eta`` [Pa·s] is."""
-        return StirProblem(recording, config if eta <= config.viscosity_cap else thick, density, span)
-
-    whole = Windows(windows[0].start, end, end)
-    problem = problem_for(0.0, whole)
-    thick_problem = problem_for(cap, whole)
+    def problem_of(eta: float) -> StirProblem:
+        """The whole stir simulated as a rung of viscosity ``eta`` [Pa·s] is: implicitly above the cap."""
+        return problem if eta <= config.viscosity_cap else thick_problem
     masks = np.array([(problem.times > w.start) & (problem.times <= w.end) for w in windows])
     noise = noise_scale(problem.measured, recording.sensor.resolution)
     target = np.log([float(np.mean(np.abs(problem.measured[m]))) for m in masks])
@@ -163,8 +160,7 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
 
     def simulate(viscosities: list[float]) -> Rungs:
         nonlocal cap
-        jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem if eta <= config.viscosity_cap else thick_problem,
-                           FitModel.named("newtonian", eta=eta))
+        jobs = [ReadingJob(stage, f"rung {eta:.6g}", problem_of(eta), FitModel.named("newtonian", eta=eta))
                 for eta in viscosities]
         found = dict(zip(viscosities, workers.map(jobs)))
         diverged = [(eta, job) for eta, job in zip(viscosities, jobs) if not np.all(np.isfinite(found[eta]))]
@@ -207,7 +203,8 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
     probe = _probe_window(np.where(capped, 0.0, slope))
     window = windows[probe]
     probe_viscosity = min(float(np.exp(log_eta[probe])), cap)
-    probed = problem_for(probe_viscosity, Windows(window.start, window.end, window.end))
+    probed = StirProblem(recording, problem_of(probe_viscosity).config, density,
+                         Windows(window.start, window.end, window.end))
     k_s = metzner_otto_constant(probed, probe_viscosity,
                                 evaluate=lambda models: mean_readings_on(workers, stage, probed, models))
     simulations = len(readings) + SHEAR_RATE_PROBES
