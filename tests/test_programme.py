@@ -14,7 +14,8 @@ from diffstir.behaviour.report import markdown
 from diffstir.errors import ConfigError
 from diffstir.recording import RecordingError
 from diffstir.fitting import PROGRAMME_SIMULATIONS, programme
-from diffstir.fitting.programme import BRACKET, MAX_RUNGS, MIN_SLOPE, Rungs, _probe_window, _waveform_estimate
+from diffstir.fitting.programme import (BRACKET, MAX_RUNGS, MIN_SLOPE, THICKEST_RUNG, Rungs, _probe_window,
+                                       _waveform_estimate)
 
 #: FAST's inertia is its own, so σ_i (the 2.5 mm slice's error against finite elements) is left out (test_behaviour)
 SETTINGS = {"analysis": "flow_curve", "replicates": 50, "inertial_error": 0.0}
@@ -98,6 +99,7 @@ def test_a_newtonian_programme_reads_its_viscosity_at_every_window_and_is_newton
     assert result.joint.selected == "newtonian"
     summary = result.summary()
     assert summary["programmes"][0]["rungs"] == list(fit.rungs)
+    assert summary["programmes"][0]["ceiling"] == fit.ceiling == THICKEST_RUNG and fit.diverged == ()
     assert reclassify(summary).label == "newtonian"
     # report.md says of each window whether it is classified, and why not
     rows = [line for line in markdown(summary).splitlines() if line.startswith("| ") and "@" in line]
@@ -154,15 +156,18 @@ def test_a_rung_diverging_at_its_step_is_simulated_again_at_half_of_it(lab_recor
 def test_a_diverging_rung_is_dropped_and_the_rung_below_it_becomes_the_thickest(lab_recordings, monkeypatch):
     """The 0.5 Pa·s fluid whose 1 Pa·s rung diverges at either step (its readings made non-finite here): the rung
     is dropped with a warning that names it, no rung is simulated above the 0.1 Pa·s one, every window reads at
-    it, and the analysis refuses in one line instead of carrying NaN into a law."""
+    it, and the analysis refuses in one line that names the step, not the thickest rung, instead of carrying NaN
+    into a law."""
     class Diverging(programme.ReadingJob):
         def run(self, report):
             readings = super().run(report)
             return readings * math.nan if self.key == "rung 1" else readings
 
     monkeypatch.setattr(programme, "ReadingJob", Diverging)
+    refusal = (r"at the viscosity cap.*; use a smaller sim.dt_max \(0.004 s\): the simulations of the 1 Pa s rungs "
+               r"diverged, so the windows at 0.1 Pa s read a fluid at least that thick$")
     with pytest.warns(RuntimeWarning, match=r"the 1 Pa s rung's simulation diverged; windows thicker than 0.1 Pa s"):
-        with pytest.raises(RecordingError, match="at the viscosity cap"):
+        with pytest.raises(RecordingError, match=refusal):
             characterise([lab_recordings["newtonian"]], config=FAST, workers=1,
                          settings=BehaviourSettings(**SETTINGS))
 

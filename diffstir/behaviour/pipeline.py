@@ -135,8 +135,7 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
             capped = "at the viscosity cap" in states
             advice = ["stir faster or at more speeds"] if "not resolved" in states or not capped else []
             if capped and programme:
-                advice.append(f"raise behaviour.thickest_rung ({max(settings.thickest_rung, config.viscosity_cap):g}"
-                              " Pa s): the windows at it read a fluid at least that thick")
+                advice.append(_ceiling_advice(programmes, config))
             elif capped:
                 solver = "" if config.viscous_solver == "implicit" else (
                     " with sim.viscous_solver=implicit, whose step does not shorten with the viscosity")
@@ -169,6 +168,19 @@ def characterise(recordings: list[Recording], *, config: SimConfig, settings: Be
             result = decide(result, index, test, settings.slope_test)
         tracker.close(f"{result.label} (confidence {result.confidence:.2f})")
     return Behaviour(rho, points, used, k_s, result, joint, time.perf_counter() - started, programmes)
+
+
+def _ceiling_advice(programmes: list[ProgrammeFit], config: SimConfig) -> str:
+    """What lifts the programmes' ceiling: a shorter step where a rung's simulation diverged below the thickest
+    rung allowed, else a thicker thickest rung."""
+    ceiling = min(fit.ceiling for fit in programmes)
+    diverged = sorted({eta for fit in programmes for eta in fit.diverged})
+    if diverged:
+        rungs = ", ".join(f"{eta:.4g}" for eta in diverged)
+        return (f"use a smaller sim.dt_max ({config.dt_max:g} s): the simulations of the {rungs} Pa s rungs "
+                f"diverged, so the windows at {ceiling:.4g} Pa s read a fluid at least that thick")
+    return (f"raise behaviour.thickest_rung ({ceiling:g} Pa s): the windows at it read a fluid at least that "
+            "thick")
 
 
 def _window_state(point, used: list) -> str:

@@ -119,20 +119,27 @@ class Rungs:
 @dataclass(frozen=True)
 class ProgrammeFit:
     """What ``programme_viscosities`` found: the ``points`` (one per window, in order), the Metzner-Otto constant
-    ``metzner_otto`` k_s [1], the ``rungs``' viscosities [Pa·s] and the ``simulations`` spent."""
+    ``metzner_otto`` k_s [1], the ``rungs``' viscosities [Pa·s], the ``simulations`` spent, the ``ceiling`` [Pa·s]
+    at and above which a window is ``capped``, and the rungs dropped because their simulation ``diverged`` [Pa·s]
+    (the ceiling is then the rung below the thinnest of them, else the larger of ``thickest_rung`` and the
+    simulator's ``viscosity_cap``)."""
 
     points: list[ViscosityPoint]
     metzner_otto: float
     rungs: tuple[float, ...]
     simulations: int
+    ceiling: float
+    diverged: tuple[float, ...] = ()
 
     def summary(self) -> dict:
         recording = self.points[0].window.recording
         return {"recording": str(recording.path or recording.name or "recording"), "metzner_otto": self.metzner_otto,
-                "rungs": list(self.rungs), "simulations": self.simulations,
-                "units": {"rungs": "Pa s"},
+                "rungs": list(self.rungs), "simulations": self.simulations, "ceiling": self.ceiling,
+                "diverged": list(self.diverged),
+                "units": {"rungs": "Pa s", "ceiling": "Pa s", "diverged": "Pa s"},
                 "meaning": "rungs: the Newtonian viscosities simulated over the whole programme, every window read "
-                           "off them (docs/flow-curve.md)"}
+                           "off them (docs/flow-curve.md); ceiling: the viscosity at which a window reads as "
+                           "capped; diverged: rungs dropped because their simulation diverged at either step"}
 
 
 def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density: float, *, workers: Workers,
@@ -157,6 +164,7 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
     noise = noise_scale(problem.measured, recording.sensor.resolution)
     target = np.log([float(np.mean(np.abs(problem.measured[m]))) for m in masks])
     readings: dict[float, np.ndarray] = {}
+    dropped: list[float] = []  # Pa·s: rungs whose simulation diverged at either step
 
     def simulate(viscosities: list[float]) -> Rungs:
         nonlocal cap
@@ -171,6 +179,7 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
             if np.all(np.isfinite(reading)):
                 readings[eta] = reading
             else:  # the step diverged at either length: the thinner rungs are the ladder's top
+                dropped.append(eta)
                 cap = min(cap, max([v for v in readings if v < eta], default=min(viscosities)))
                 warnings.warn(f"{stage}: the {eta:.4g} Pa s rung's simulation diverged; windows thicker than "
                               f"{cap:.4g} Pa s are read as at the viscosity cap", RuntimeWarning, stacklevel=2)
@@ -220,7 +229,8 @@ def programme_viscosities(windows: list[SpeedWindow], config: SimConfig, density
             model_log_std=model_log_std if resolvable else math.inf, baseline=baseline, resolvable=bool(resolvable),
             loss=float(np.mean(np.abs(problem.measured[masks[k]] - p))), evaluations=simulations,
             slice_factor=_slice_factor(problem, min(math.exp(x), cap)), capped=bool(capped[k])))
-    return ProgrammeFit(points, k_s, tuple(float(v) for v in rungs.viscosities), simulations)
+    return ProgrammeFit(points, k_s, tuple(float(v) for v in rungs.viscosities), simulations, float(cap),
+                        tuple(sorted(dropped)))
 
 
 def _next_rung(viscosities: np.ndarray, log_eta: float) -> float:
