@@ -490,6 +490,15 @@ def test_windows_split_and_too_short_recordings(newtonian_recording):
         Windows.of(newtonian_recording, 0.3, 1.0)
 
 
+def test_a_stir_thicker_than_the_viscosity_cap_is_refused_after_the_ladder_naming_the_cap(newtonian_recording):
+    """The 0.8 Pa·s stir on a simulator capped at 0.2 Pa·s: no law's reading thickens past the cap, so the fit would
+    end there and name the fluid at the cap; the ladder's estimate lies above it and the identification stops with
+    one line that names the cap and what lifts it, before any law is fitted."""
+    with pytest.raises(RecordingError, match=r"above sim.viscosity_cap \(0.2 Pa s\).*sim.viscous_solver=implicit"):
+        identify(newtonian_recording, ["newtonian"], config=FAST.replace(viscosity_cap=0.2), density=1000.0,
+                 baseline=False, progress=False, size_estimate=False)
+
+
 def test_missing_density_names_the_file_and_unit(newtonian_recording):
     with pytest.raises(RecordingError, match="kg/m\\^3"):
         identify(newtonian_recording, ["newtonian"], config=FAST, baseline=False, progress=False)

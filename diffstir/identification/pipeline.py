@@ -28,7 +28,7 @@ from ..fitting import (LADDER_VISCOSITIES, MAGNITUDE_STEPS, SHEAR_RATE_PROBES, F
 from ..mpm import SimConfig
 from ..mpm.config import NUMERICS
 from ..parallel import Workers
-from ..recording import Recording
+from ..recording import Recording, RecordingError
 from ..rheology import LAWS
 from .checkpoint import Checkpoint, fingerprint, recording_label
 from .stages import Plan, Stage, stage_simulations
@@ -166,6 +166,13 @@ class FitRun:
                                     "resolves": ladder.resolves(problem.mean_reading()),
                                     **problem.config.numerics()}
             self.checkpoint.save()
+        estimate, cap = self.state["ladder"]["estimate"], min(s.problem.config.viscosity_cap for s in self.stages)
+        if estimate > cap:  # every law's reading stops thickening at the cap: no fit could reach the recording
+            raise RecordingError(
+                f"{problem.recording.source('csv')}: the stir reads like a Newtonian fluid of about "
+                f"{estimate:.3g} Pa s (the Newtonian ladder), above sim.viscosity_cap ({cap:g} Pa s), where the "
+                "simulated fluid stops thickening: raise sim.viscosity_cap with sim.viscous_solver=implicit, or stir "
+                "at several speeds and analyse with experiment=flow_curve, whose rungs go to behaviour.thickest_rung")
         if "effective_shear_rate" not in self.state:
             self.state["effective_shear_rate"] = effective_shear_rate(problem, self.state["ladder"]["estimate"],
                                                                       evaluate=evaluate)
